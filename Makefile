@@ -1,0 +1,41 @@
+# Two-command quick start: `make demo` and `make test`. Each creates .venv when
+# missing and installs what it needs, so a fresh clone with Python >= 3.11 and
+# make is enough.
+PYTHON ?= python3
+VENV   := .venv
+BIN    := $(VENV)/bin
+STAMP  := $(VENV)/.installed
+DEMO_OUT ?= out/demo
+
+.PHONY: demo test lint format figures clean
+
+$(BIN)/python:
+	$(PYTHON) -m venv $(VENV)
+	$(BIN)/python -m pip install --quiet --upgrade pip
+
+$(STAMP): pyproject.toml | $(BIN)/python
+	$(BIN)/python -m pip install --quiet -e ".[test,dev]"
+	touch $(STAMP)
+
+demo: $(STAMP)
+	$(BIN)/python experiments/demo.py --out $(DEMO_OUT)
+
+test: $(STAMP)
+	$(BIN)/python -m pytest -q
+
+lint: $(STAMP)
+	$(BIN)/ruff check .
+	$(BIN)/ruff format --check .
+
+format: $(STAMP)
+	$(BIN)/ruff format .
+	$(BIN)/ruff check --fix .
+
+figures: $(STAMP)
+	$(BIN)/python experiments/paper_figures.py --out docs/figures
+	$(BIN)/python experiments/compare.py
+	$(BIN)/python experiments/sweep.py
+	$(BIN)/python experiments/benchmark.py
+
+clean:
+	rm -rf $(VENV) out .pytest_cache .ruff_cache

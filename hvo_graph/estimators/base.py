@@ -1,0 +1,56 @@
+"""The streaming interface shared by every estimator.
+
+One :meth:`Estimator.update` per frame, in order, returns the online (causal)
+estimate of that frame. :meth:`Estimator.trajectory` returns the final
+estimate of every frame: the same as the online one for a filter, the
+smoothed one for a smoother. :meth:`Estimator.run` does a whole sequence.
+"""
+
+from __future__ import annotations
+
+from abc import ABC, abstractmethod
+from collections.abc import Iterable
+
+from hvo_graph.errors import InputError
+from hvo_graph.types import FrameMeasurement, StateEstimate, Trajectory, trajectory_from_states
+
+
+class Estimator(ABC):
+    """Base class: keeps the online estimates and checks frame order."""
+
+    #: name used by the command line (``--method``).
+    name: str = ""
+
+    def __init__(self) -> None:
+        self._online: list[StateEstimate] = []
+
+    @abstractmethod
+    def _update(self, frame: FrameMeasurement) -> StateEstimate:
+        """Fuse one frame and return its online estimate."""
+
+    def update(self, frame: FrameMeasurement) -> StateEstimate:
+        """Fuse the measurements of the next frame; return its online estimate."""
+        if self._online:
+            last = self._online[-1]
+            if frame.index <= last.index or frame.t <= last.t:
+                raise InputError(
+                    f"frame {frame.index} (t={frame.t}) does not follow frame "
+                    f"{last.index} (t={last.t}): frames must arrive in increasing order"
+                )
+        estimate = self._update(frame)
+        self._online.append(estimate)
+        return estimate
+
+    def online_trajectory(self) -> Trajectory:
+        """The online estimate of every frame so far (each as it was right after its update)."""
+        return trajectory_from_states(self._online)
+
+    def trajectory(self) -> Trajectory:
+        """The final estimate of every frame so far (smoothed, for smoothers)."""
+        return self.online_trajectory()
+
+    def run(self, frames: Iterable[FrameMeasurement]) -> Trajectory:
+        """Update with every frame and return :meth:`trajectory`."""
+        for frame in frames:
+            self.update(frame)
+        return self.trajectory()

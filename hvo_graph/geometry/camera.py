@@ -1,0 +1,126 @@
+"""Pinhole camera with optional OpenCV lens distortion.
+
+Normalized image coordinates are m = [x/z, y/z, 1]^T (the paper's m), i.e.
+pixels mapped through K^-1 after undistortion. Distortion goes through
+OpenCV (``cv2.undistortPoints`` / ``cv2.projectPoints``), never by hand.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import cv2
+import numpy as np
+
+from hvo_graph.errors import InputError, as_points
+
+
+@dataclass(frozen=True)
+class CameraModel:
+    """Intrinsics fx, fy, cx, cy (pixels), image size and OpenCV distortion.
+
+    Attributes:
+        fx, fy: focal lengths in pixels.
+        cx, cy: principal point in pixels (OpenCV convention: the centre of the
+            top-left pixel is (0, 0)).
+        width, height: image size in pixels.
+        distortion: (5,) k1 k2 p1 p2 k3 (OpenCV order), zeros for none.
+    """
+
+    fx: float
+    fy: float
+    cx: float
+    cy: float
+    width: int
+    height: int
+    distortion: np.ndarray = field(default_factory=lambda: np.zeros(5))
+
+    def __post_init__(self) -> None:
+        for name in ("fx", "fy"):
+            value = getattr(self, name)
+            if not (np.isfinite(value) and value > 0):
+                raise InputError(f"camera.{name}: expected a finite number > 0, got {value}")
+        for name in ("cx", "cy"):
+            if not np.isfinite(getattr(self, name)):
+                raise InputError(f"camera.{name}: expected a finite number")
+        for name in ("width", "height"):
+            value = getattr(self, name)
+            if int(value) != value or value <= 0:
+                raise InputError(f"camera.{name}: expected a positive integer, got {value}")
+        dist = np.asarray(self.distortion, dtype=float).ravel()
+        if dist.size not in (4, 5, 8, 12, 14) or not np.all(np.isfinite(dist)):
+            raise InputError(
+                "camera.distortion: expected 4, 5, 8, 12 or 14 finite OpenCV coefficients "
+                f"(k1 k2 p1 p2 [k3 ...]), got {dist.size}"
+            )
+        object.__setattr__(self, "distortion", dist)
+
+    @property
+    def K(self) -> np.ndarray:
+        """(3, 3) intrinsic matrix."""
+        return np.array([[self.fx, 0.0, self.cx], [0.0, self.fy, self.cy], [0.0, 0.0, 1.0]])
+
+    @property
+    def has_distortion(self) -> bool:
+        return bool(np.any(self.distortion != 0.0))
+
+    @property
+    def mean_focal(self) -> float:
+        """(fx + fy) / 2: converts a pixel sigma into normalized units."""
+        return 0.5 * (self.fx + self.fy)
+
+    def pixel_to_normalized(self, uv: np.ndarray) -> np.ndarray:
+        """Undistort and normalize pixels.
+
+        Args:
+            uv: (N, 2) pixel coordinates.
+        Returns:
+            (N, 3) normalized homogeneous coordinates m = [x, y, 1].
+        """
+        uv = as_points(uv, "uv", dim=2)
+        if self.has_distortion:
+            xy = cv2.undistortPoints(uv.reshape(-1, 1, 2), self.K, self.distortion).reshape(-1, 2)
+        else:
+            xy = np.column_stack(((uv[:, 0] - self.cx) / self.fx, (uv[:, 1] - self.cy) / self.fy))
+        return np.column_stack((xy, np.ones(len(xy))))
+
+    def normalized_to_pixel(self, m: np.ndarray) -> np.ndarray:
+        """Distort and map normalized coordinates to pixels.
+
+        Args:
+            m: (N, 2) or (N, 3) normalized coordinates (a third column must be 1).
+        Returns:
+            (N, 2) pixel coordinates.
+        """
+        m = as_points(m, "m")
+        xy = m[:, :2] / m[:, 2:3] if m.shape[1] == 3 else m
+        if self.has_distortion:
+            pts = np.column_stack((xy, np.ones(len(xy))))
+            uv, _ = cv2.projectPoints(pts, np.zeros(3), np.zeros(3), self.K, self.distortion)
+            return uv.reshape(-1, 2)
+        return np.column_stack((self.fx * xy[:, 0] + self.cx, self.fy * xy[:, 1] + self.cy))
+
+    def project(self, points: np.ndarray) -> np.ndarray:
+        """Project camera-frame 3D points to pixels.
+
+        Args:
+            points: (N, 3) points in the camera frame, z > 0.
+        Returns:
+            (N, 2) pixel coordinates.
+        Raises:
+            InputError: when a point is not in front of the camera.
+        """
+        points = as_points(points, "points", dim=3)
+        if np.any(points[:, 2] <= 0):
+            raise InputError("points: a point is behind the camera (z <= 0)")
+        return self.normalized_to_pixel(points / points[:, 2:3])
+
+    def in_view(self, uv: np.ndarray, margin: float = 0.0) -> np.ndarray:
+        """(N,) bool: pixels inside the image, at least ``margin`` pixels from its border."""
+        uv = np.asarray(uv, dtype=float).reshape(-1, 2)
+        return (
+            (uv[:, 0] >= -0.5 + margin)
+            & (uv[:, 0] <= self.width - 0.5 - margin)
+            & (uv[:, 1] >= -0.5 + margin)
+            & (uv[:, 1] <= self.height - 0.5 - margin)
+        )

@@ -1,0 +1,180 @@
+"""Records passed between the layers of hvo_graph.
+
+Conventions (docs/conventions.md, binding contract):
+
+- metres, seconds, radians; camera frame x right, y down, z optical axis;
+- world frame W = the camera frame at the first frame (the paper's F*);
+- a pose is T_wc (camera to world): rotation R_wc, camera centre p_wc in W;
+- a twist is the camera's body velocity ``[w; v]`` (GTSAM's Pose3 tangent
+  order), expressed in the current camera frame: d/dt T_wc = T_wc [w; v]^;
+- pose covariances live in GTSAM's Pose3 tangent space ``[rot; trans]`` with
+  right perturbation: T_true = T_est * Exp(delta).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from hvo_graph.errors import InputError, as_vector
+
+
+@dataclass(frozen=True)
+class Plane:
+    """The scene plane in the reference frame F*: n*^T X* = d* for plane points X*.
+
+    Attributes:
+        normal: n*, (3,) unit normal pointing away from the camera, or None when
+            it must be estimated from the images.
+        distance: d* > 0, metres from the reference optical centre to the plane.
+    """
+
+    distance: float
+    normal: np.ndarray | None = None
+
+    def __post_init__(self) -> None:
+        if not (np.isfinite(self.distance) and self.distance > 0):
+            raise InputError(f"plane.distance: expected a finite number > 0, got {self.distance}")
+        if self.normal is not None:
+            n = as_vector(self.normal, "plane.normal", 3)
+            norm = np.linalg.norm(n)
+            if norm < 1e-12:
+                raise InputError("plane.normal: expected a non-zero vector")
+            object.__setattr__(self, "normal", n / norm)
+
+
+@dataclass(frozen=True)
+class FrameObservations:
+    """The tracked points of one frame (one block of tracks.csv).
+
+    Attributes:
+        index: frame number (>= 0).
+        t: time in seconds.
+        ids: (N,) int point ids.
+        uv: (N, 2) pixel coordinates (OpenCV convention).
+    """
+
+    index: int
+    t: float
+    ids: np.ndarray
+    uv: np.ndarray
+
+
+@dataclass(frozen=True)
+class PoseMeasurement:
+    """A camera pose measured from the discrete homography H_d.
+
+    Attributes:
+        rotation: (3, 3) R_rc, camera orientation in the reference frame.
+        position: (3,) p_rc, camera centre in the reference frame (metres).
+        covariance: (6, 6) in Pose3 tangent order [rot; trans], right perturbation.
+        reference: frame index of the reference (keyframe); 0 is the world frame W.
+    """
+
+    rotation: np.ndarray
+    position: np.ndarray
+    covariance: np.ndarray
+    reference: int = 0
+
+
+@dataclass(frozen=True)
+class VelocityMeasurement:
+    """A body twist measured from the continuous homography H_c.
+
+    The flow comes from a finite difference between frames k-1 and k, so the
+    twist is the velocity at the middle of that interval (paper/NOTES.md 3).
+
+    Attributes:
+        twist: (6,) body velocity [w; v] (rad/s, m/s), contract sign.
+        covariance: (6, 6) covariance of ``twist``.
+        t: time the twist refers to (mid-interval, seconds).
+        dt: length of the finite-difference interval (seconds).
+    """
+
+    twist: np.ndarray
+    covariance: np.ndarray
+    t: float
+    dt: float
+
+
+@dataclass(frozen=True)
+class FrameMeasurement:
+    """Everything the front end measured at frame ``index``.
+
+    ``pose`` or ``velocity`` is None when the frame had too few usable points;
+    estimators then predict through the frame.
+    """
+
+    index: int
+    t: float
+    pose: PoseMeasurement | None = None
+    velocity: VelocityMeasurement | None = None
+    num_points: int = 0
+
+
+@dataclass
+class Trajectory:
+    """Poses and body velocities over time (estimate or ground truth).
+
+    Attributes:
+        t: (K,) timestamps, seconds, strictly increasing.
+        rotations: (K, 3, 3) R_wc.
+        positions: (K, 3) p_wc, metres.
+        twists: (K, 6) body velocity [w; v], or None when unknown.
+        covariances: (K, 12, 12) marginal covariance of [pose tangent; twist], or None.
+    """
+
+    t: np.ndarray
+    rotations: np.ndarray
+    positions: np.ndarray
+    twists: np.ndarray | None = None
+    covariances: np.ndarray | None = field(default=None, repr=False)
+
+    def __len__(self) -> int:
+        return len(self.t)
+
+    @property
+    def angular_velocity(self) -> np.ndarray:
+        """(K, 3) body angular velocity w."""
+        assert self.twists is not None
+        return self.twists[:, :3]
+
+    @property
+    def linear_velocity(self) -> np.ndarray:
+        """(K, 3) body linear velocity v."""
+        assert self.twists is not None
+        return self.twists[:, 3:]
+
+
+@dataclass(frozen=True)
+class StateEstimate:
+    """An estimator's belief about one frame.
+
+    Attributes:
+        index: frame index.
+        t: time, seconds.
+        rotation: (3, 3) R_wc.
+        position: (3,) p_wc.
+        twist: (6,) body velocity [w; v].
+        covariance: (12, 12) covariance of [pose tangent; twist] or None.
+    """
+
+    index: int
+    t: float
+    rotation: np.ndarray
+    position: np.ndarray
+    twist: np.ndarray
+    covariance: np.ndarray | None = None
+
+
+def trajectory_from_states(states: list[StateEstimate]) -> Trajectory:
+    """Stack per-frame estimates into a :class:`Trajectory`."""
+    covs = [s.covariance for s in states]
+    return Trajectory(
+        t=np.array([s.t for s in states], dtype=float),
+        rotations=np.array([s.rotation for s in states], dtype=float).reshape(-1, 3, 3),
+        positions=np.array([s.position for s in states], dtype=float).reshape(-1, 3),
+        twists=np.array([s.twist for s in states], dtype=float).reshape(-1, 6),
+        covariances=np.array(covs, dtype=float) if states and all(c is not None for c in covs) else None,
+    )
