@@ -15,7 +15,9 @@ class InputError(ValueError):
     """Bad user input: the message names what is wrong and what was expected."""
 
 
-def as_points(array: object, name: str, *, min_points: int = 1, dim: int | None = None) -> np.ndarray:
+def as_points(
+    array: object, name: str, *, min_points: int = 1, dim: int | None = None
+) -> np.ndarray:
     """Return ``array`` as a finite float array of shape (N, dim), or raise InputError.
 
     Args:

@@ -13,7 +13,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from hvo_graph.errors import InputError
+from hvo_graph.errors import InputError, as_matrix, as_vector
 
 #: |cos p| below this is treated as the singularity of eqs. 3-5 (p = +-90 deg).
 GIMBAL_LOCK_COS = 1e-6
@@ -21,13 +21,13 @@ GIMBAL_LOCK_COS = 1e-6
 
 def skew(w: np.ndarray) -> np.ndarray:
     """(3, 3) matrix w^ with w^ x = w × x."""
-    wx, wy, wz = np.asarray(w, dtype=float)
+    wx, wy, wz = as_vector(w, "w", 3)
     return np.array([[0.0, -wz, wy], [wz, 0.0, -wx], [-wy, wx, 0.0]])
 
 
 def nearest_rotation(M: np.ndarray) -> np.ndarray:
     """The rotation closest to ``M`` in Frobenius norm (SVD projection onto SO(3))."""
-    U, _, Vt = np.linalg.svd(M)
+    U, _, Vt = np.linalg.svd(as_matrix(M, "M", (3, 3)))
     D = np.diag([1.0, 1.0, np.sign(np.linalg.det(U @ Vt))])
     return U @ D @ Vt
 
@@ -62,7 +62,7 @@ def rotation_to_euler(R: np.ndarray) -> tuple[float, float, float]:
         InputError: at gimbal lock (|cos p| < GIMBAL_LOCK_COS), where r and w
             are not separable.
     """
-    R = np.asarray(R, dtype=float)
+    R = as_matrix(R, "R", (3, 3))
     pitch = float(np.arcsin(np.clip(-R[1, 2], -1.0, 1.0)))
     if np.hypot(R[1, 0], R[1, 1]) < GIMBAL_LOCK_COS:
         raise InputError("rotation: pitch is +-90 deg (gimbal lock); roll and yaw are undefined")
@@ -83,8 +83,10 @@ def euler_rates(roll: float, pitch: float, w_body: np.ndarray) -> np.ndarray:
     """
     cp = np.cos(pitch)
     if abs(cp) < GIMBAL_LOCK_COS:
-        raise InputError("pitch is +-90 deg: the Euler rate equations (paper eqs. 3-5) are singular")
-    wx, wy, wz = np.asarray(w_body, dtype=float)
+        raise InputError(
+            "pitch is +-90 deg: the Euler rate equations (paper eqs. 3-5) are singular"
+        )
+    wx, wy, wz = as_vector(w_body, "w_body", 3)
     a = wx * np.sin(roll) + wy * np.cos(roll)
     return np.array([a * np.tan(pitch) + wz, wx * np.cos(roll) - wy * np.sin(roll), a / cp])
 

@@ -1,0 +1,560 @@
+"""Discrete (Euclidean) homography H_d: estimation, normalization, decomposition.
+
+Conventions (paper eq. 1, NOTES section 2, contract): (R, T) maps coordinates
+of the reference frame F* into the current camera frame, X = R X* + T. Plane
+points satisfy n*^T X* = d* (n* unit, pointing away from the camera, d* > 0),
+hence X = H_d X* and, for normalized image points m = [x/z, y/z, 1]^T,
+
+    m ~ H_d m*,   H_d = R + T n*^T / d* = R + t n*^T,   t := T / d*.
+
+Every function takes normalized homogeneous coordinates as (N, 3) arrays whose
+third column is 1, or (N, 2) arrays of [x, y].
+
+The usual pipeline is :func:`estimate_homography` (scale-free H) ->
+:func:`euclidean_homography` (scale and sign fixed) -> either
+:func:`decompose_homography` + :func:`physically_valid_solutions` +
+:func:`select_solution` (normal unknown), or
+:func:`motion_from_homography_known_normal` (normal known; the path that stays
+accurate near H_d = I) -> :func:`camera_pose_from_motion`.
+
+Reference: Y. Ma, S. Soatto, J. Kosecka, S. S. Sastry, *An Invitation to 3-D
+Vision*, Springer 2004, section 5.3 (the planar homography and its
+decomposition); E. Malis, M. Vargas, *Deeper understanding of the homography
+decomposition for vision-based control*, INRIA RR-6303, 2007.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import cv2
+import numpy as np
+
+from hvo_graph.errors import InputError, as_matrix, as_points, as_vector
+from hvo_graph.geometry.rotation import nearest_rotation
+
+#: Smallest accepted ratio sigma_8 / sigma_1 of the (Hartley-normalized) DLT
+#: system: below it the point configuration does not determine H (collinear
+#: points). Well-spread configurations give 1e-2 .. 1e-1.
+DEGENERACY_TOL = 1e-8
+
+#: Tolerance on "the third column of m is 1" and on "the normal is a unit vector".
+_UNIT_TOL = 1e-9
+
+#: sigma_1 - sigma_3 of a Euclidean H_d below this (relative): H_d is a rotation (t = 0).
+_ROTATION_TOL = 1e-10
+
+#: |sigma_2 - 1| above this: the matrix was not normalized by euclidean_homography.
+_EUCLIDEAN_TOL = 1e-6
+
+
+# --------------------------------------------------------------------------- validation
+
+
+def normalized_points(m: object, name: str, *, min_points: int = 1) -> np.ndarray:
+    """Validate image points and return them as an (N, 3) array [x, y, 1].
+
+    Args:
+        m: (N, 2) [x, y] or (N, 3) [x, y, 1] normalized image coordinates.
+        name: argument name used in error messages.
+        min_points: smallest accepted N.
+    Raises:
+        InputError: wrong shape, too few points, NaN/inf, or a third column that is not 1.
+    """
+    a = as_points(m, name, min_points=min_points)
+    if a.shape[1] == 2:
+        return np.column_stack((a, np.ones(len(a))))
+    bad = np.flatnonzero(np.abs(a[:, 2] - 1.0) > _UNIT_TOL)
+    if bad.size:
+        i = int(bad[0])
+        raise InputError(
+            f"{name}: third column must be 1 (normalized coordinates m = [x/z, y/z, 1]), "
+            f"got {float(a[i, 2]):g} in row {i}"
+        )
+    return a.copy()
+
+
+def unit_normal(normal: object, name: str = "normal") -> np.ndarray:
+    """Validate a plane normal: a finite (3,) vector of unit length (to 1e-9).
+
+    Raises:
+        InputError: wrong shape, NaN/inf, or a norm that is not 1.
+    """
+    n = as_vector(normal, name, 3)
+    norm = float(np.linalg.norm(n))
+    if abs(norm - 1.0) > _UNIT_TOL:
+        raise InputError(f"{name}: expected a unit vector, got norm {norm:.6g}")
+    return n / norm
+
+
+def positive_distance(distance: object, name: str = "distance") -> float:
+    """Validate a plane distance: a finite scalar > 0.
+
+    Raises:
+        InputError: not a scalar, NaN/inf, or <= 0.
+    """
+    try:
+        d = float(distance) if np.ndim(distance) == 0 else np.nan
+    except (TypeError, ValueError):
+        d = np.nan
+    if not (np.isfinite(d) and d > 0):
+        raise InputError(f"{name}: expected a finite number > 0, got {distance!r}")
+    return d
+
+
+def _pair(m_ref: object, m_cur: object, min_points: int) -> tuple[np.ndarray, np.ndarray]:
+    a = normalized_points(m_ref, "m_ref", min_points=min_points)
+    b = normalized_points(m_cur, "m_cur", min_points=min_points)
+    if len(a) != len(b):
+        raise InputError(f"m_cur: expected as many points as m_ref ({len(a)}), got {len(b)}")
+    return a, b
+
+
+# --------------------------------------------------------------------------- DLT
+
+
+def _hartley(m: np.ndarray) -> np.ndarray:
+    """(3, 3) similarity moving the centroid to 0 and the mean distance to sqrt(2)."""
+    c = m[:, :2].mean(axis=0)
+    mean_dist = np.mean(np.linalg.norm(m[:, :2] - c, axis=1))
+    if mean_dist <= 0.0:
+        # All points coincide: the DLT rank test below reports it as degenerate.
+        mean_dist = 1.0
+    s = np.sqrt(2.0) / mean_dist
+    return np.array([[s, 0.0, -s * c[0]], [0.0, s, -s * c[1]], [0.0, 0.0, 1.0]])
+
+
+def _dlt_system(src: np.ndarray, dst: np.ndarray) -> np.ndarray:
+    """(2N, 9) rows of dst × (H src) = 0 for h = H.ravel() (rows x and y of the cross product)."""
+    n = len(src)
+    A = np.zeros((2 * n, 9))
+    x, y = dst[:, 0], dst[:, 1]
+    A[0::2, 3:6] = -src
+    A[0::2, 6:9] = y[:, None] * src
+    A[1::2, 0:3] = src
+    A[1::2, 6:9] = -x[:, None] * src
+    return A
+
+
+def _degeneracy_ratio(A: np.ndarray) -> tuple[float, np.ndarray]:
+    """sigma_8 / sigma_1 of a (2N, 9) system (0 when rank < 8) and its right singular vectors."""
+    _, s, Vt = np.linalg.svd(A, full_matrices=True)
+    s9 = np.zeros(9)
+    s9[: len(s)] = s
+    ratio = s9[7] / s9[0] if s9[0] > 0 else 0.0
+    return float(ratio), Vt
+
+
+def _check_configuration(m: np.ndarray, name: str) -> None:
+    """Raise when the point set alone does not determine a homography (collinear points).
+
+    The set m is degenerate exactly when more than one homography maps it onto
+    itself, i.e. when the DLT system of the identity correspondence m -> m has rank < 8.
+    """
+    Tm = _hartley(m)
+    mn = m @ Tm.T
+    ratio, _ = _degeneracy_ratio(_dlt_system(mn, mn))
+    if ratio < DEGENERACY_TOL:
+        raise InputError(
+            f"{name}: degenerate point configuration (collinear points: all, or all but one, "
+            "on a line); the homography is not determined"
+        )
+
+
+def _dlt(m_ref: np.ndarray, m_cur: np.ndarray) -> np.ndarray:
+    """Normalized DLT (Hartley & Zisserman alg. 4.2); least squares for N > 4."""
+    _check_configuration(m_ref, "m_ref")
+    _check_configuration(m_cur, "m_cur")
+    T_ref, T_cur = _hartley(m_ref), _hartley(m_cur)
+    ratio, Vt = _degeneracy_ratio(_dlt_system(m_ref @ T_ref.T, m_cur @ T_cur.T))
+    if ratio < DEGENERACY_TOL:
+        raise InputError(
+            "m_ref, m_cur: degenerate correspondences (the DLT system is rank-deficient, "
+            "e.g. collinear points); the homography is not determined"
+        )
+    Hn = Vt[-1].reshape(3, 3)
+    H = np.linalg.solve(T_cur, Hn @ T_ref)
+    return H / np.linalg.norm(H)
+
+
+def estimate_homography(
+    m_ref: np.ndarray, m_cur: np.ndarray, *, ransac_threshold: float | None = None
+) -> tuple[np.ndarray, np.ndarray]:
+    """Estimate H_d (up to scale) with m_cur ~ H_d m_ref.
+
+    Normalized DLT: both point sets are moved to centroid 0 and mean distance
+    sqrt(2), the 2N x 9 system m × (H m*) = 0 is solved by SVD (the least
+    squares solution of ||h|| = 1 for N > 4), and the normalization is undone.
+
+    Args:
+        m_ref: (N, 2|3) normalized points m* in the reference frame, N >= 4.
+        m_cur: (N, 2|3) normalized points m in the current frame.
+        ransac_threshold: when given, outliers are rejected first with
+            ``cv2.findHomography(..., cv2.RANSAC, ransac_threshold)`` (the threshold is a
+            transfer distance in normalized-coordinate units, i.e. pixels / focal length),
+            then H is re-estimated by DLT on the inliers.
+    Returns:
+        H: (3, 3) homography with ||H||_F = 1 (scale and sign arbitrary: see
+            :func:`euclidean_homography`).
+        inliers: (N,) bool, all True without RANSAC.
+    Raises:
+        InputError: fewer than 4 points, mismatched shapes, NaN/inf, degenerate
+            (collinear) configurations, or fewer than 4 RANSAC inliers.
+    """
+    a, b = _pair(m_ref, m_cur, 4)
+    inliers = np.ones(len(a), dtype=bool)
+    if ransac_threshold is not None:
+        thr = float(ransac_threshold)
+        if not (np.isfinite(thr) and thr > 0):
+            raise InputError(f"ransac_threshold: expected a finite number > 0, got {thr!r}")
+        try:
+            H_cv, mask = cv2.findHomography(a[:, :2], b[:, :2], cv2.RANSAC, thr)
+        except cv2.error as exc:
+            raise InputError(f"m_ref, m_cur: RANSAC homography failed ({exc.err})") from None
+        if H_cv is None or mask is None:
+            raise InputError(
+                "m_ref, m_cur: RANSAC found no homography (degenerate or collinear points?)"
+            )
+        inliers = mask.ravel().astype(bool)
+        if inliers.sum() < 4:
+            raise InputError(
+                f"m_ref, m_cur: RANSAC kept {int(inliers.sum())} inliers, need at least 4"
+            )
+    return _dlt(a[inliers], b[inliers]), inliers
+
+
+# --------------------------------------------------------------------------- normalization
+
+
+def homography_from_motion(
+    R: np.ndarray, T: np.ndarray, normal: np.ndarray, distance: float
+) -> np.ndarray:
+    """H_d = R + T n*^T / d*  (paper section II).
+
+    Args:
+        R: (3, 3) rotation, reference -> current (X = R X* + T).
+        T: (3,) translation in metres.
+        normal: (3,) unit normal n* of the plane in the reference frame.
+        distance: d* > 0, plane distance from the reference optical centre.
+    Returns:
+        (3, 3) Euclidean homography H_d.
+    """
+    R = as_matrix(R, "R", (3, 3))
+    T = as_vector(T, "T", 3)
+    n = unit_normal(normal)
+    d = positive_distance(distance)
+    return R + np.outer(T, n) / d
+
+
+def euclidean_homography(H: np.ndarray, m_ref: np.ndarray, m_cur: np.ndarray) -> np.ndarray:
+    """Fix the scale and sign of an estimated homography (Ma et al. section 5.3).
+
+    The scale is chosen so that the middle singular value is 1 (that of
+    R + t n*^T); the sign so that m_i^T H m*_i > 0 for every point, because for
+    the Euclidean H_d, z m = z* H_d m*, so m^T H_d m* = (z / z*) ||m||^2 > 0 when
+    the point is in front of both cameras.
+
+    Args:
+        H: (3, 3) homography up to scale, m_cur ~ H m_ref.
+        m_ref: (N, 2|3) normalized reference points m*.
+        m_cur: (N, 2|3) normalized current points m.
+    Returns:
+        (3, 3) Euclidean H_d.
+    Raises:
+        InputError: H of rank < 2, or points that disagree on the sign of
+            m^T H m* (points behind the camera: not a valid homography).
+    """
+    H = as_matrix(H, "H", (3, 3))
+    a, b = _pair(m_ref, m_cur, 1)
+    s = np.linalg.svd(H, compute_uv=False)
+    if not s[1] > 1e-12 * max(s[0], np.finfo(float).tiny):
+        raise InputError("H: rank < 2, not a homography between two views of a plane")
+    H = H / s[1]
+    g = np.einsum("ij,jk,ik->i", b, H, a)
+    if np.all(g < 0):
+        H, g = -H, -g
+    if not np.all(g > 0):
+        raise InputError(
+            "m_ref, m_cur: points behind the camera: m^T H m* changes sign between points "
+            "(not a valid homography for points in front of both cameras)"
+        )
+    return H
+
+
+def _euclidean_input(H_euclid: object) -> np.ndarray:
+    H = as_matrix(H_euclid, "H_euclid", (3, 3))
+    s = np.linalg.svd(H, compute_uv=False)
+    if abs(s[1] - 1.0) > _EUCLIDEAN_TOL:
+        raise InputError(
+            f"H_euclid: middle singular value must be 1, got {s[1]:.6g} "
+            "(normalize with euclidean_homography first)"
+        )
+    det = float(np.linalg.det(H))
+    if not det > 0:
+        # det(R + t n^T) = 1 + n^T R^T t = d(t) / d*, positive while the camera stays on
+        # the same side of the plane; a negative value is a wrong sign of H.
+        raise InputError(
+            f"H_euclid: det(H) = {det:.6g} <= 0: wrong sign (normalize with "
+            "euclidean_homography) or the camera crossed the plane"
+        )
+    return H
+
+
+# --------------------------------------------------------------------------- decomposition
+
+
+@dataclass(frozen=True)
+class HomographySolution:
+    """One decomposition H_d = R + t n*^T.
+
+    Attributes:
+        rotation: (3, 3) R, reference -> current (X = R X* + T).
+        translation: (3,) t = T / d* (T in metres, d* the reference plane distance).
+        normal: (3,) unit plane normal n* in the reference frame.
+    """
+
+    rotation: np.ndarray
+    translation: np.ndarray
+    normal: np.ndarray
+
+
+def decompose_homography(H_euclid: np.ndarray) -> list[HomographySolution]:
+    """All (R, t = T/d*, n*) with H_d = R + t n*^T (Ma et al. section 5.3).
+
+    With H_d = U diag(s1, 1, s3) V^T and V = [v1 v2 v3],
+
+        u_{1,2} = (sqrt(1 - s3^2) v1 +- sqrt(s1^2 - 1) v3) / sqrt(s1^2 - s3^2)
+        R_i = [H v2, H u_i, (H v2) × (H u_i)] [v2, u_i, v2 × u_i]^T
+        n_i = v2 × u_i,  t_i = (H - R_i) n_i
+
+    and the two mirrored solutions (R_i, -t_i, -n_i): four in all, in the order
+    (R1, t1, n1), (R2, t2, n2), (R1, -t1, -n1), (R2, -t2, -n2). Positive depth
+    (:func:`physically_valid_solutions`) normally leaves two; a normal prior
+    (:func:`select_solution`) picks one.
+
+    Pure rotation: when s1 = s3 (= 1, i.e. H_d is a rotation) the translation is 0
+    and the normal is unobservable; a single solution is returned with
+    R = H_d (projected onto SO(3)), t = 0 and, by convention, n* = e3 = [0, 0, 1]
+    (any normal is exact; e3 passes every positive-depth test).
+
+    Conditioning: as s1 -> 1 or s3 -> 1 (translation along the plane normal) the
+    two physical solutions merge, and the normal is only sqrt(eps)-accurate
+    (about 1e-8 even for exact data); as t -> 0 the normal is undetermined. With
+    n* known use :func:`motion_from_homography_known_normal` instead.
+
+    Args:
+        H_euclid: (3, 3) Euclidean homography (middle singular value 1, positive
+            depth sign), e.g. from :func:`euclidean_homography`.
+    Returns:
+        list of :class:`HomographySolution` (4, or 1 for a pure rotation).
+    Raises:
+        InputError: H_euclid not normalized (middle singular value != 1) or with
+            det <= 0.
+    """
+    H = _euclidean_input(H_euclid)
+    _, s, Vt = np.linalg.svd(H)
+    s1, s3 = s[0] / s[1], s[2] / s[1]
+    if s1 - s3 <= _ROTATION_TOL:
+        return [HomographySolution(nearest_rotation(H), np.zeros(3), np.array([0.0, 0.0, 1.0]))]
+    v1, v2, v3 = Vt
+    # Clip tiny negative round-off when s1 or s3 equals 1 (translation along n(t)).
+    a = np.sqrt(max(1.0 - s3 * s3, 0.0))
+    b = np.sqrt(max(s1 * s1 - 1.0, 0.0))
+    c = np.sqrt(s1 * s1 - s3 * s3)
+    solutions = []
+    for u in ((a * v1 + b * v3) / c, (a * v1 - b * v3) / c):
+        U = np.column_stack((v2, u, np.cross(v2, u)))
+        Hv2, Hu = H @ v2, H @ u
+        W = np.column_stack((Hv2, Hu, np.cross(Hv2, Hu)))
+        R = nearest_rotation(W @ U.T)
+        n = np.cross(v2, u)
+        n /= np.linalg.norm(n)
+        solutions.append(HomographySolution(R, (H - R) @ n, n))
+    solutions += [
+        HomographySolution(sol.rotation, -sol.translation, -sol.normal) for sol in solutions
+    ]
+    return solutions
+
+
+def _front_margins(
+    a: np.ndarray, b: np.ndarray, R: np.ndarray, t: np.ndarray, n: np.ndarray
+) -> tuple[float, float, float]:
+    """Smallest n*^T m*_i, d(t)/d* = 1 + n*^T R^T t, smallest (R n*)^T m_i.
+
+    Depths are z*_i = d* / (n*^T m*_i) in the reference frame and
+    z_i = d(t) / (n(t)^T m_i) in the current one, with n(t) = R n* and
+    d(t) = d* (1 + n*^T R^T t): all positive iff the three numbers are.
+    """
+    return (
+        float(np.min(a @ n)),
+        float(1.0 + n @ R.T @ t),
+        float(np.min(b @ (R @ n))),
+    )
+
+
+def physically_valid_solutions(
+    solutions: list[HomographySolution], m_ref: np.ndarray, m_cur: np.ndarray
+) -> list[HomographySolution]:
+    """Keep the solutions that put every point in front of both cameras.
+
+    Tests (all strict): n*^T m*_i > 0 (reference depth), 1 + n*^T R^T t > 0
+    (the current camera is on the same side of the plane, d(t) > 0), and
+    (R n*)^T m_i > 0 (current depth). For a generic motion two of the four
+    solutions of :func:`decompose_homography` survive.
+
+    Args:
+        solutions: candidates from :func:`decompose_homography`.
+        m_ref, m_cur: (N, 2|3) the correspondences the homography came from.
+    Returns:
+        the surviving solutions, in input order (possibly empty).
+    """
+    a, b = _pair(m_ref, m_cur, 1)
+    return [
+        sol
+        for sol in solutions
+        if min(_front_margins(a, b, sol.rotation, sol.translation, sol.normal)) > 0
+    ]
+
+
+def check_points_in_front(
+    m_ref: np.ndarray, m_cur: np.ndarray, R: np.ndarray, t: np.ndarray, normal: np.ndarray
+) -> None:
+    """Raise unless every point is in front of both cameras for the motion (R, t, n*).
+
+    Same tests as :func:`physically_valid_solutions`.
+
+    Args:
+        m_ref, m_cur: (N, 2|3) normalized correspondences.
+        R: (3, 3) rotation reference -> current; t: (3,) T / d*; normal: (3,) unit n*.
+    Raises:
+        InputError: "points behind the camera" naming the frame that fails.
+    """
+    a, b = _pair(m_ref, m_cur, 1)
+    R = as_matrix(R, "R", (3, 3))
+    t = as_vector(t, "t", 3)
+    n = unit_normal(normal)
+    ref, side, cur = _front_margins(a, b, R, t, n)
+    if not ref > 0:
+        raise InputError("m_ref: points behind the camera in the reference frame (n*^T m* <= 0)")
+    if not side > 0:
+        raise InputError(
+            "points behind the camera: the current camera is behind the plane (1 + n*^T R^T t <= 0)"
+        )
+    if not cur > 0:
+        raise InputError("m_cur: points behind the camera in the current frame ((R n*)^T m <= 0)")
+
+
+def select_solution(
+    solutions: list[HomographySolution], normal_prior: np.ndarray
+) -> HomographySolution:
+    """The solution whose normal n* is closest in direction to ``normal_prior``.
+
+    Args:
+        solutions: non-empty list of candidates.
+        normal_prior: (3,) non-zero vector (normalized here), e.g. the known n*
+            or the previous frame's estimate.
+    Raises:
+        InputError: empty list or zero prior.
+    """
+    if not solutions:
+        raise InputError("solutions: empty list, nothing to select")
+    p = as_vector(normal_prior, "normal_prior", 3)
+    if not np.linalg.norm(p) > 0:
+        raise InputError("normal_prior: expected a non-zero vector")
+    return max(solutions, key=lambda sol: float(sol.normal @ p))
+
+
+def motion_from_homography_known_normal(
+    H_euclid: np.ndarray,
+    normal: np.ndarray,
+    *,
+    m_ref: np.ndarray | None = None,
+    m_cur: np.ndarray | None = None,
+) -> tuple[np.ndarray, np.ndarray]:
+    """(R, t = T/d*) from H_d = R + t n*^T when n* is known.
+
+    For u1, u2 an orthonormal basis of the plane orthogonal to n*,
+    H_d u_i = R u_i exactly; R is the rotation that best maps u_i onto H_d u_i
+    (Wahba / orthogonal Procrustes by SVD, with the det = +1 correction), and
+    t = H_d n* - R n*. Unlike the general decomposition this stays
+    well-conditioned as t -> 0: H_d = I gives R = I, t = 0 to machine precision.
+
+    Args:
+        H_euclid: (3, 3) Euclidean homography (middle singular value 1, positive
+            depth sign), e.g. from :func:`euclidean_homography`.
+        normal: (3,) unit plane normal n* in the reference frame.
+        m_ref, m_cur: optional (N, 2|3) correspondences; when given, the result is
+            checked with :func:`check_points_in_front`.
+    Returns:
+        R: (3, 3) rotation reference -> current.
+        t: (3,) T / d*.
+    Raises:
+        InputError: H_euclid not normalized, bad normal, or (with points) points
+            behind the camera.
+    """
+    H = _euclidean_input(H_euclid)
+    n = unit_normal(normal)
+    # Rows 2 and 3 of V^T in the SVD of the 1 x 3 matrix n^T: an orthonormal basis of n-perp.
+    basis = np.linalg.svd(n[None, :])[2][1:]
+    B = sum(np.outer(H @ u, u) for u in basis)
+    U, _, Vt = np.linalg.svd(B)
+    D = np.diag([1.0, 1.0, np.sign(np.linalg.det(U @ Vt))])
+    R = U @ D @ Vt
+    t = H @ n - R @ n
+    if m_ref is not None or m_cur is not None:
+        if m_ref is None or m_cur is None:
+            raise InputError("m_ref, m_cur: give both or neither")
+        check_points_in_front(m_ref, m_cur, R, t, n)
+    return R, t
+
+
+# --------------------------------------------------------------------------- poses
+
+
+def camera_pose_from_motion(R: np.ndarray, T: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Camera pose T_wc in the reference (world) frame from the point motion (R, T).
+
+    X = R X* + T maps reference coordinates into the current camera frame, so
+    the current camera has R_wc = R^T and centre p_wc = -R^T T.
+
+    Args:
+        R: (3, 3) rotation; T: (3,) translation in metres (T = d* t).
+    Returns:
+        (R_wc (3, 3), p_wc (3,)).
+    """
+    R = as_matrix(R, "R", (3, 3))
+    T = as_vector(T, "T", 3)
+    return R.T.copy(), -R.T @ T
+
+
+def motion_from_camera_pose(R_wc: np.ndarray, p_wc: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Inverse of :func:`camera_pose_from_motion`: R = R_wc^T, T = -R_wc^T p_wc.
+
+    Args:
+        R_wc: (3, 3) camera orientation in the world (reference) frame.
+        p_wc: (3,) camera centre in the world frame, metres.
+    Returns:
+        (R (3, 3), T (3,)) with X = R X* + T.
+    """
+    R_wc = as_matrix(R_wc, "R_wc", (3, 3))
+    p_wc = as_vector(p_wc, "p_wc", 3)
+    return R_wc.T.copy(), -R_wc.T @ p_wc
+
+
+__all__ = [
+    "DEGENERACY_TOL",
+    "HomographySolution",
+    "camera_pose_from_motion",
+    "check_points_in_front",
+    "decompose_homography",
+    "estimate_homography",
+    "euclidean_homography",
+    "homography_from_motion",
+    "motion_from_camera_pose",
+    "motion_from_homography_known_normal",
+    "normalized_points",
+    "physically_valid_solutions",
+    "positive_distance",
+    "select_solution",
+    "unit_normal",
+]
