@@ -176,5 +176,7 @@ def trajectory_from_states(states: list[StateEstimate]) -> Trajectory:
         rotations=np.array([s.rotation for s in states], dtype=float).reshape(-1, 3, 3),
         positions=np.array([s.position for s in states], dtype=float).reshape(-1, 3),
         twists=np.array([s.twist for s in states], dtype=float).reshape(-1, 6),
-        covariances=np.array(covs, dtype=float) if states and all(c is not None for c in covs) else None,
+        covariances=np.array(covs, dtype=float)
+        if states and all(c is not None for c in covs)
+        else None,
     )

@@ -1,0 +1,275 @@
+"""The ``hvo-graph`` command: ``simulate``, ``estimate`` and ``evaluate`` (docs/CONTRACT).
+
+A thin layer over the library: it parses arguments, reads the contract's files,
+calls :func:`hvo_graph.simulation.simulate`, :func:`hvo_graph.pipeline.estimate`
+or :mod:`hvo_graph.evaluation`, and writes the contract's files. Bad input
+(an :class:`~hvo_graph.errors.InputError`, or a file that cannot be read or
+written) prints one line ``hvo-graph: error: ...`` on stderr and exits with
+status 2, like argparse's own usage errors; never a traceback.
+
+Examples::
+
+    hvo-graph simulate --out run/                       # the paper's noisy scenario
+    hvo-graph estimate --camera run/camera.yaml --tracks run/tracks.csv \\
+        --method smoother --out run/smoother
+    hvo-graph evaluate --estimate run/smoother --groundtruth run/
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import math
+import sys
+import time
+from collections.abc import Callable, Sequence
+from pathlib import Path
+
+from hvo_graph.errors import InputError
+
+PROG = "hvo-graph"
+#: ``--method`` choices; kept in step with hvo_graph.pipeline.METHODS (checked by the tests).
+METHODS = ("smoother", "batch", "fixed-lag", "kalman", "measurements", "ippe")
+KALMAN_R = ("paper-noisy", "paper-noise-free", "measured")
+ROBUST = ("none", "huber", "cauchy")
+
+
+def _progress(message: str) -> None:
+    """Progress notes go to stderr, and only when a person is watching it."""
+    if sys.stderr.isatty():
+        print(f"{PROG}: {message}", file=sys.stderr, flush=True)
+
+
+def _int_at_least(minimum: int) -> Callable[[str], int]:
+    def parse(text: str) -> int:
+        try:
+            value = int(text)
+        except ValueError:
+            raise argparse.ArgumentTypeError(f"expected an integer, got {text!r}") from None
+        if value < minimum:
+            raise argparse.ArgumentTypeError(f"expected an integer >= {minimum}, got {value}")
+        return value
+
+    return parse
+
+
+def _float(minimum: float, *, strict: bool) -> Callable[[str], float]:
+    def parse(text: str) -> float:
+        try:
+            value = float(text)
+        except ValueError:
+            raise argparse.ArgumentTypeError(f"expected a number, got {text!r}") from None
+        ok = value > minimum if strict else value >= minimum
+        if not (ok and math.isfinite(value)):
+            op = ">" if strict else ">="
+            raise argparse.ArgumentTypeError(
+                f"expected a finite number {op} {minimum:g}, got {text}"
+            )
+        return value
+
+    return parse
+
+
+def build_parser() -> argparse.ArgumentParser:
+    """The argument parser (subcommands simulate, estimate, evaluate)."""
+    parser = argparse.ArgumentParser(
+        prog=PROG,
+        description="Homography-based visual odometry fused in a GTSAM factor graph.",
+    )
+    sub = parser.add_subparsers(dest="command", metavar="COMMAND", required=True)
+
+    sim = sub.add_parser(
+        "simulate",
+        help="simulate the paper's scenario (tracks, camera and ground truth)",
+        description="Write DIR/camera.yaml, DIR/tracks.csv, DIR/groundtruth.txt (TUM, T_wc) and "
+        "DIR/groundtruth_velocity.csv. Defaults reproduce the paper's noisy run "
+        "(variance 0.05 px^2, 30 fps, 4 points, 10 s).",
+    )
+    sim.add_argument("--out", required=True, metavar="DIR", help="output folder (created)")
+    sim.add_argument("--scenario", choices=("paper",), default="paper", help="scenario (paper)")
+    sim.add_argument("--seed", type=_int_at_least(0), default=0, help="noise seed (default 0)")
+    sim.add_argument(
+        "--noise-var",
+        type=_float(0.0, strict=False),
+        default=None,
+        metavar="PX2",
+        help="pixel noise variance in px^2 (default 0.05; 0 for the noise-free run)",
+    )
+    sim.add_argument(
+        "--duration", type=_float(0.0, strict=True), default=None, metavar="S", help="seconds"
+    )
+    sim.add_argument(
+        "--fps", type=_float(0.0, strict=True), default=None, metavar="F", help="frame rate"
+    )
+    sim.add_argument(
+        "--num-points", type=_int_at_least(4), default=None, metavar="N", help="plane points"
+    )
+
+    est = sub.add_parser(
+        "estimate",
+        help="estimate the trajectory from tracks",
+        description="Write DIR/trajectory.txt (TUM, T_wc), DIR/velocity.csv and, with "
+        "--covariance, DIR/covariance.csv.",
+    )
+    est.add_argument("--camera", required=True, metavar="FILE", help="camera/scene YAML")
+    source = est.add_mutually_exclusive_group(required=True)
+    source.add_argument("--tracks", metavar="FILE", help="feature tracks CSV (frame,t,id,u,v)")
+    source.add_argument(
+        "--images", metavar="PATH", help="image folder or video (not supported yet)"
+    )
+    est.add_argument("--method", choices=METHODS, default=METHODS[0], help="default: smoother")
+    est.add_argument("--out", required=True, metavar="DIR", help="output folder (created)")
+    # Options left out are not passed on, so the pipeline's own defaults apply.
+    S = argparse.SUPPRESS
+    est.add_argument("--seed", type=_int_at_least(0), default=S, help="Kalman initial-state seed")
+    est.add_argument("--kalman-r", choices=KALMAN_R, default=S, help="Kalman R_k preset")
+    est.add_argument(
+        "--kalman-world-velocity",
+        action="store_true",
+        default=S,
+        help="rotate measured v into the world frame before the Kalman update (not the paper's)",
+    )
+    est.add_argument(
+        "--online", action="store_true", default=S, help="write the causal (filtered) estimate"
+    )
+    est.add_argument(
+        "--covariance", action="store_true", default=S, help="also write covariance.csv"
+    )
+    est.add_argument(
+        "--lag",
+        type=_float(0.0, strict=True),
+        default=S,
+        metavar="SECONDS",
+        help="fixed-lag window",
+    )
+    est.add_argument("--robust", choices=ROBUST, default=S, help="robust loss of the smoother")
+    est.add_argument(
+        "--pixel-sigma",
+        type=_float(0.0, strict=True),
+        default=S,
+        metavar="PX",
+        help="pixel noise std (overrides the camera file's noise.pixel_sigma)",
+    )
+
+    ev = sub.add_parser(
+        "evaluate",
+        help="errors of an estimate against ground truth",
+        description="Position (m), orientation (deg), linear (m/s) and angular (rad/s) velocity "
+        "errors, RMSE and max, matched by timestamp.",
+    )
+    ev.add_argument("--estimate", required=True, metavar="DIR", help="an estimate output folder")
+    ev.add_argument("--groundtruth", required=True, metavar="DIR", help="a simulate-style folder")
+    ev.add_argument("--json", action="store_true", help="print one JSON object instead of a table")
+    ev.add_argument(
+        "--skip",
+        type=_float(0.0, strict=False),
+        default=None,
+        metavar="SECONDS",
+        help="ignore frames in the first SECONDS after the ground truth's first timestamp",
+    )
+    return parser
+
+
+def _simulate(args: argparse.Namespace) -> int:
+    from hvo_graph.simulation import paper_scenario, simulate, write_scenario
+
+    overrides = {
+        "seed": args.seed,
+        "noise_var": args.noise_var,
+        "duration": args.duration,
+        "fps": args.fps,
+        "num_points": args.num_points,
+    }
+    config = paper_scenario(noisy=True, **{k: v for k, v in overrides.items() if v is not None})
+    _progress(f"simulating {config.num_frames} frames of {config.num_points} points")
+    scenario = simulate(config)
+    write_scenario(args.out, scenario)
+    print(
+        f"{PROG} simulate: wrote {config.num_frames} frames, {config.num_points} points, "
+        f"noise variance {config.noise_var:g} px^2 to {args.out}"
+    )
+    return 0
+
+
+def _estimate(args: argparse.Namespace) -> int:
+    if args.images is not None:
+        raise InputError("--images: image input is not supported yet; give --tracks")
+    from hvo_graph.io.config import load_scene
+    from hvo_graph.io.tracks import read_tracks
+    from hvo_graph.io.trajectory import write_estimate_dir
+    from hvo_graph.pipeline import estimate
+
+    scene = load_scene(args.camera)
+    observations = read_tracks(args.tracks)
+    options = {
+        key: getattr(args, key)
+        for key in (
+            "seed",
+            "kalman_r",
+            "kalman_world_velocity",
+            "online",
+            "covariance",
+            "lag",
+            "robust",
+            "pixel_sigma",
+        )
+        if hasattr(args, key)
+    }
+    if "robust" in options and options["robust"] == "none":
+        options["robust"] = None
+    _progress(f"estimating {len(observations)} frames with --method {args.method}")
+    start = time.perf_counter()
+    trajectory = estimate(observations, scene, method=args.method, **options)
+    _progress(f"done in {time.perf_counter() - start:.1f} s")
+    write_estimate_dir(args.out, trajectory)
+    print(f"{PROG} estimate: wrote {len(trajectory)} frames ({args.method}) to {args.out}")
+    return 0
+
+
+def _evaluate(args: argparse.Namespace) -> int:
+    from hvo_graph.evaluation import error_series, format_table, summarize
+    from hvo_graph.io.trajectory import read_estimate_dir, read_groundtruth_dir
+
+    estimate = read_estimate_dir(args.estimate)
+    groundtruth = read_groundtruth_dir(args.groundtruth)
+    series = error_series(estimate, groundtruth)
+    t_start = None if args.skip is None else float(groundtruth.t[0]) + args.skip
+    summary = summarize(series, t_start=t_start)
+    if args.json:
+        print(json.dumps(summary.as_dict()))
+    else:
+        name = Path(args.estimate).resolve().name or str(args.estimate)
+        print(format_table({name: summary}))
+    return 0
+
+
+def _os_error_message(exc: OSError) -> str:
+    """'cannot read|write PATH: reason', naming the path the OS complained about."""
+    reason = exc.strerror or str(exc)
+    if exc.filename is None:
+        return reason
+    return f"{exc.filename}: {reason}"
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    """Run the command line; returns the exit status (0 ok, 2 usage or input error)."""
+    parser = build_parser()
+    try:
+        args = parser.parse_args(argv)
+    except SystemExit as exc:  # argparse: --help (0) or a usage error (2)
+        return int(exc.code or 0)
+    handler = {"simulate": _simulate, "estimate": _estimate, "evaluate": _evaluate}[args.command]
+    try:
+        return handler(args)
+    except InputError as exc:
+        print(f"{PROG}: error: {exc}", file=sys.stderr)
+    except OSError as exc:
+        print(f"{PROG}: error: {_os_error_message(exc)}", file=sys.stderr)
+    except KeyboardInterrupt:
+        print(f"{PROG}: interrupted", file=sys.stderr)
+        return 130
+    return 2
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())

@@ -1,0 +1,222 @@
+"""The hvo-graph command line, in process (main) and as an installed command (subprocess)."""
+
+from __future__ import annotations
+
+import json
+import shutil
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+import hvo_graph.pipeline
+from hvo_graph import cli
+from hvo_graph.cli import main
+from hvo_graph.io.config import load_scene
+from hvo_graph.io.tracks import read_tracks
+from hvo_graph.simulation import paper_scenario, simulate
+
+COMMAND = Path(sys.executable).parent / "hvo-graph"
+
+
+def run(*args: str) -> subprocess.CompletedProcess:
+    return subprocess.run(
+        [str(COMMAND), *args], capture_output=True, text=True, timeout=120, check=False
+    )
+
+
+def as_estimate(sim_dir: Path, out: Path) -> Path:
+    """An estimate folder holding the ground truth itself."""
+    out.mkdir()
+    shutil.copy(sim_dir / "groundtruth.txt", out / "trajectory.txt")
+    shutil.copy(sim_dir / "groundtruth_velocity.csv", out / "velocity.csv")
+    return out
+
+
+def assert_one_line_error(result: subprocess.CompletedProcess, *fragments: str) -> None:
+    assert result.returncode == 2, result.stderr
+    assert "Traceback" not in result.stderr
+    lines = result.stderr.strip().splitlines()
+    assert len(lines) == 1, result.stderr
+    assert lines[0].startswith("hvo-graph: error: ")
+    for fragment in fragments:
+        assert fragment in lines[0]
+
+
+def test_simulate_then_evaluate_groundtruth_against_itself(tmp_path, capsys):
+    sim = tmp_path / "sim"
+    assert main(["simulate", "--out", str(sim)]) == 0
+    for name in ("camera.yaml", "tracks.csv", "groundtruth.txt", "groundtruth_velocity.csv"):
+        assert (sim / name).is_file()
+    scene = load_scene(sim / "camera.yaml")
+    assert scene.pixel_sigma == pytest.approx(np.sqrt(0.05))
+    assert len(read_tracks(sim / "tracks.csv")) == 301
+    capsys.readouterr()
+
+    est = as_estimate(sim, tmp_path / "est")
+    assert main(["evaluate", "--estimate", str(est), "--groundtruth", str(sim), "--json"]) == 0
+    result = json.loads(capsys.readouterr().out)
+    assert result["frames"] == 301
+    for key in ("position_m", "orientation_deg", "linear_velocity_mps", "angular_velocity_radps"):
+        assert result[key] == {"rmse": 0.0, "max": 0.0}
+
+    assert main(["evaluate", "--estimate", str(est), "--groundtruth", str(sim), "--skip", "1"]) == 0
+    table = capsys.readouterr().out.splitlines()
+    assert table[0].startswith("method") and "pos RMSE [m]" in table[0]
+    assert table[1].split()[0] == "est" and table[1].split()[-1] == "271"
+
+
+def test_simulate_options_match_the_library(tmp_path):
+    args = ["--noise-var", "0", "--duration", "2", "--fps", "10", "--num-points", "6"]
+    assert main(["simulate", "--out", str(tmp_path), "--seed", "3", *args]) == 0
+    expected = simulate(paper_scenario(noise_var=0.0, duration=2.0, fps=10.0, num_points=6, seed=3))
+    frames = read_tracks(tmp_path / "tracks.csv")
+    assert len(frames) == 21
+    for got, want in zip(frames, expected.clean_observations, strict=True):
+        assert got.t == want.t
+        np.testing.assert_array_equal(got.uv, want.uv)
+    assert load_scene(tmp_path / "camera.yaml").pixel_sigma == 0.0
+
+
+def test_installed_command_end_to_end(tmp_path):
+    sim = tmp_path / "sim"
+    result = run("simulate", "--out", str(sim), "--duration", "2")
+    assert result.returncode == 0 and result.stderr == ""  # no progress when not a TTY
+    est = as_estimate(sim, tmp_path / "est")
+    result = run("evaluate", "--estimate", str(est), "--groundtruth", str(sim), "--json")
+    assert result.returncode == 0, result.stderr
+    assert json.loads(result.stdout)["position_m"] == {"rmse": 0.0, "max": 0.0}
+    module = subprocess.run(
+        [sys.executable, "-m", "hvo_graph", "--help"], capture_output=True, text=True, check=False
+    )
+    assert module.returncode == 0 and "simulate" in module.stdout and "evaluate" in module.stdout
+
+
+def test_estimate_measurements_end_to_end(tmp_path):
+    """simulate (noise-free) -> estimate --method measurements -> evaluate."""
+    sim, est = tmp_path / "sim", tmp_path / "est"
+    assert run("simulate", "--out", str(sim), "--noise-var", "0", "--duration", "3").returncode == 0
+    camera, tracks = str(sim / "camera.yaml"), str(sim / "tracks.csv")
+    result = run("estimate", "--camera", camera, "--tracks", tracks, "--method", "measurements",
+                 "--out", str(est))  # fmt: skip
+    assert result.returncode == 0, result.stderr
+    assert (est / "trajectory.txt").is_file() and (est / "velocity.csv").is_file()
+    result = run("evaluate", "--estimate", str(est), "--groundtruth", str(sim), "--json")
+    errors = json.loads(result.stdout)
+    assert errors["frames"] == 91
+    # noise-free homographies give the pose to round-off; finite-difference flow
+    # gives the velocity to a small discretisation error (a sign error would be ~0.3).
+    assert errors["position_m"]["max"] < 1e-8
+    assert errors["orientation_deg"]["max"] < 1e-6
+    assert errors["linear_velocity_mps"]["rmse"] < 0.01
+    assert errors["angular_velocity_radps"]["rmse"] < 0.01
+
+
+def test_estimate_is_a_thin_layer_over_the_pipeline(tmp_path, monkeypatch):
+    sim = tmp_path / "sim"
+    assert main(["simulate", "--out", str(sim), "--duration", "1"]) == 0
+    calls = []
+    gt = simulate(paper_scenario(duration=1.0)).groundtruth
+
+    def fake_estimate(observations, scene, method="smoother", **options):
+        calls.append((len(observations), scene.plane.distance, method, options))
+        return gt
+
+    monkeypatch.setattr(hvo_graph.pipeline, "estimate", fake_estimate)
+    base = ["estimate", "--camera", str(sim / "camera.yaml"), "--tracks", str(sim / "tracks.csv")]
+    assert main([*base, "--out", str(tmp_path / "a")]) == 0
+    assert calls[-1] == (31, 2.0, "smoother", {})
+    extra = ["--method", "fixed-lag", "--lag", "2", "--robust", "none", "--online", "--seed", "4"]
+    extra += ["--kalman-r", "measured", "--kalman-world-velocity", "--covariance"]
+    assert main([*base, "--out", str(tmp_path / "b"), *extra, "--pixel-sigma", "0.5"]) == 0
+    assert calls[-1][2:] == (
+        "fixed-lag",
+        {
+            "seed": 4,
+            "kalman_r": "measured",
+            "kalman_world_velocity": True,
+            "online": True,
+            "covariance": True,
+            "lag": 2.0,
+            "robust": None,
+            "pixel_sigma": 0.5,
+        },
+    )
+    assert (tmp_path / "b" / "trajectory.txt").is_file()
+
+
+def test_cli_methods_are_the_pipeline_methods():
+    assert cli.METHODS == hvo_graph.pipeline.METHODS
+
+
+def test_bad_inputs_exit_2_with_one_line(tmp_path):
+    sim = tmp_path / "sim"
+    assert main(["simulate", "--out", str(sim), "--duration", "1"]) == 0
+
+    missing = tmp_path / "nothing"
+    assert_one_line_error(
+        run("evaluate", "--estimate", str(missing), "--groundtruth", str(sim)),
+        f"{missing}: expected a directory",
+    )
+    empty = tmp_path / "empty"
+    empty.mkdir()
+    assert_one_line_error(
+        run("evaluate", "--estimate", str(empty), "--groundtruth", str(sim)),
+        f"{empty / 'trajectory.txt'}: No such file or directory",
+    )
+    bad_yaml = tmp_path / "bad.yaml"
+    bad_yaml.write_text((sim / "camera.yaml").read_text().replace("  fx:", "  fz:"))
+    tracks = str(sim / "tracks.csv")
+    assert_one_line_error(
+        run(
+            "estimate", "--camera", str(bad_yaml), "--tracks", tracks, "--out", str(tmp_path / "o")
+        ),
+        f"{bad_yaml}:3: unknown key 'camera.fz'",
+    )
+    bad_tracks = tmp_path / "bad.csv"
+    lines = (sim / "tracks.csv").read_text().splitlines()
+    lines[5] = lines[5].replace(",", ";")
+    bad_tracks.write_text("\n".join(lines))
+    camera = str(sim / "camera.yaml")
+    assert_one_line_error(
+        run("estimate", "--camera", camera, "--tracks", str(bad_tracks), "--out", str(tmp_path)),
+        f"{bad_tracks}:6: expected 5 comma-separated values",
+    )
+    assert_one_line_error(
+        run("estimate", "--camera", camera, "--tracks", str(tmp_path / "no.csv"), "--out", "x"),
+        f"{tmp_path / 'no.csv'}: No such file or directory",
+    )
+    assert_one_line_error(
+        run("estimate", "--camera", camera, "--images", str(tmp_path), "--out", "x"),
+        "--images: image input is not supported yet; give --tracks",
+    )
+
+
+@pytest.mark.parametrize(
+    "args",
+    [
+        ["simulate"],
+        ["simulate", "--out", "x", "--num-points", "3"],
+        ["simulate", "--out", "x", "--fps", "0"],
+        ["simulate", "--out", "x", "--scenario", "other"],
+        ["estimate", "--camera", "c.yaml", "--out", "x"],
+        ["estimate", "--camera", "c", "--tracks", "t", "--images", "i", "--out", "x"],
+        ["estimate", "--camera", "c", "--tracks", "t", "--out", "x", "--method", "magic"],
+        ["evaluate", "--estimate", "e"],
+        ["frobnicate"],
+        [],
+    ],
+)
+def test_usage_errors_exit_2(args, capsys):
+    assert main(args) == 2
+    err = capsys.readouterr().err
+    assert "Traceback" not in err and "error:" in err
+
+
+def test_usage_error_via_subprocess_has_no_traceback():
+    result = run("simulate", "--out", "x", "--noise-var", "-1")
+    assert result.returncode == 2
+    assert "Traceback" not in result.stderr
+    assert "--noise-var: expected a finite number >= 0" in result.stderr
