@@ -1,0 +1,86 @@
+"""The raw per-frame estimates, no fusion (``--method measurements`` and ``ippe``).
+
+Pose: the frame's own pose measurement (composed with the estimate of its
+keyframe when its reference is not the world frame); a frame without one keeps
+the previous pose. Twist: the mid-interval velocity measurements straddle the
+frame times, so the final trajectory reports at frame k the mean of the
+twists at k-1/2 and k+1/2 (a central difference); the online estimate, which
+cannot see frame k+1, reports the one at k-1/2.
+
+With ``velocity_from="poses"`` the twists come from differencing consecutive
+poses instead of the continuous homography: what a user of per-frame PnP
+(OpenCV IPPE) would do.
+"""
+
+from __future__ import annotations
+
+import gtsam
+import numpy as np
+
+from hvo_graph.errors import InputError
+from hvo_graph.estimators.base import Estimator
+from hvo_graph.types import FrameMeasurement, StateEstimate, Trajectory
+
+VELOCITY_SOURCES = ("flow", "poses")
+
+
+class RawMeasurements(Estimator):
+    """Pass the front end's measurements through, frame by frame."""
+
+    name = "measurements"
+
+    def __init__(self, velocity_from: str = "flow") -> None:
+        super().__init__()
+        if velocity_from not in VELOCITY_SOURCES:
+            choices = ", ".join(VELOCITY_SOURCES)
+            raise InputError(f"velocity_from: expected one of {choices}, got {velocity_from!r}")
+        self.velocity_from = velocity_from
+        self._poses: list[gtsam.Pose3] = []
+        self._interval_twists: list[np.ndarray | None] = []  # twist over (k-1, k], None if unknown
+
+    def _update(self, frame: FrameMeasurement) -> StateEstimate:
+        pose = self._poses[-1] if self._poses else gtsam.Pose3()
+        if frame.pose is not None:
+            measured = gtsam.Pose3(gtsam.Rot3(frame.pose.rotation), frame.pose.position)
+            if frame.pose.reference == 0:
+                pose = measured
+            else:
+                ref = self._pose_of_frame(frame.pose.reference)
+                pose = ref.compose(measured)
+        twist: np.ndarray | None
+        if self.velocity_from == "flow":
+            twist = (
+                None if frame.velocity is None else np.asarray(frame.velocity.twist, dtype=float)
+            )
+        elif self._poses and frame.pose is not None and self._online:
+            dt = frame.t - self._online[-1].t
+            twist = gtsam.Pose3.Logmap(self._poses[-1].between(pose)) / dt
+        else:
+            twist = None
+        self._poses.append(pose)
+        self._interval_twists.append(twist)
+        online_twist = next(
+            (w for w in reversed(self._interval_twists) if w is not None), np.zeros(6)
+        )
+        return StateEstimate(
+            frame.index, frame.t, pose.rotation().matrix(), pose.translation(), online_twist
+        )
+
+    def _pose_of_frame(self, index: int) -> gtsam.Pose3:
+        for state, pose in zip(reversed(self._online), reversed(self._poses), strict=False):
+            if state.index == index:
+                return pose
+        raise InputError(f"pose measurement refers to frame {index}, which was not seen before")
+
+    def trajectory(self) -> Trajectory:
+        traj = self.online_trajectory()
+        if len(traj) == 0:
+            return traj
+        twists = np.array(traj.twists)
+        intervals = [*self._interval_twists, None]
+        for k in range(len(traj)):
+            around = [w for w in (intervals[k], intervals[k + 1]) if w is not None]
+            if around:
+                twists[k] = np.mean(around, axis=0)
+        traj.twists = twists
+        return traj

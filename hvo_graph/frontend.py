@@ -1,0 +1,390 @@
+"""Measurement front end: feature tracks -> per-frame pose and velocity measurements.
+
+For every frame k (paper Section III, NOTES sections 2-3):
+
+- **pose** from the discrete homography H_d between the reference frame F*
+  (frame 0) and frame k: DLT on the normalized points shared with the
+  reference, Euclidean normalization, then (R, T) with the known n*, d* by the
+  known-normal path (well conditioned near H_d = I), refined by a few
+  Gauss-Newton steps on the transfer error (the near-maximum-likelihood pose
+  under pixel noise). Optionally (``pose_solver="ippe"``) OpenCV's
+  ``solvePnP(SOLVEPNP_IPPE)`` on the plane points instead: the per-frame method
+  a user would pick without this library.
+- **velocity** from the continuous homography H_c between frames k-1 and k:
+  optical flow by finite difference, mdot = (m_k - m_{k-1}) / dt at the
+  midpoint m = (m_{k-1} + m_k) / 2, plane in the *current* frame
+  n(t) = R n*, d(t) = d* + n(t)^T T (interpolated to mid-interval), and the
+  linear least-squares solve for (w, v/d) with the normal known. The result is
+  the body twist at t_{k-1/2} (finite-difference flow is the average flow over
+  the interval).
+
+Covariances are first-order (linearized) propagations of isotropic pixel
+noise sigma (``pixel_sigma``, in pixels, converted to normalized units by the
+mean focal length):
+
+- pose: (J^T Sigma^-1 J)^-1 of the transfer residuals, where each point's
+  residual covariance counts the noise of both its current and its reference
+  observation: Sigma_i = s^2 (I + A_i A_i^T), A_i = d pi(X_i) / d m*_i;
+- velocity: s_f^2 (A^T A)^-1 of the 2N x 6 flow system with
+  s_f^2 = 2 s^2 / dt^2 (two independent noisy frames per flow vector).
+
+Both ignore correlations between frames (the shared reference observations
+make all pose errors correlated; consecutive flows share a frame). See
+docs/method.md.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Iterable
+from dataclasses import dataclass
+
+import cv2
+import numpy as np
+
+from hvo_graph.errors import InputError
+from hvo_graph.geometry.camera import CameraModel
+from hvo_graph.geometry.continuous import (
+    body_twist_from_scene_motion,
+    velocity_design_matrix,
+    velocity_known_normal,
+)
+from hvo_graph.geometry.discrete import (
+    camera_pose_from_motion,
+    decompose_homography,
+    estimate_homography,
+    euclidean_homography,
+    motion_from_homography_known_normal,
+    physically_valid_solutions,
+)
+from hvo_graph.geometry.rotation import skew
+from hvo_graph.types import (
+    FrameMeasurement,
+    FrameObservations,
+    Plane,
+    PoseMeasurement,
+    VelocityMeasurement,
+)
+
+#: The paper's noisy run: pixel variance 0.05 px^2.
+DEFAULT_PIXEL_SIGMA = float(np.sqrt(0.05))
+
+#: Noise-free input still gets covariances from this pixel sigma (pixels).
+MIN_PIXEL_SIGMA = 1e-3
+
+POSE_SOLVERS = ("homography", "ippe")
+
+
+@dataclass(frozen=True)
+class FrontEndConfig:
+    """Front-end settings.
+
+    Attributes:
+        pixel_sigma: std of feature coordinates, pixels (drives the covariances).
+            Zero (noise-free input) is floored at ``MIN_PIXEL_SIGMA`` so the
+            covariances, and the fusion built on them, stay well posed.
+        min_points: fewest shared points for a measurement (>= 4).
+        ransac_threshold_px: RANSAC inlier threshold in pixels for H_d
+            (through OpenCV), or None for plain least squares on every point.
+        refine_iterations: Gauss-Newton steps refining the homography pose.
+        pose_solver: "homography" (the paper's H_d) or "ippe" (OpenCV solvePnP).
+        min_parallax: ||T|| / d* a frame needs before its decomposition is
+            used to estimate an unknown plane normal.
+    """
+
+    pixel_sigma: float = DEFAULT_PIXEL_SIGMA
+    min_points: int = 4
+    ransac_threshold_px: float | None = None
+    refine_iterations: int = 2
+    pose_solver: str = "homography"
+    min_parallax: float = 0.05
+
+    def __post_init__(self) -> None:
+        if not (np.isfinite(self.pixel_sigma) and self.pixel_sigma >= 0):
+            raise InputError(f"pixel_sigma: expected a number >= 0, got {self.pixel_sigma}")
+        if self.min_points < 4:
+            raise InputError(f"min_points: expected >= 4, got {self.min_points}")
+        if self.pose_solver not in POSE_SOLVERS:
+            raise InputError(
+                f"pose_solver: expected one of {', '.join(POSE_SOLVERS)}, got {self.pose_solver!r}"
+            )
+        if self.ransac_threshold_px is not None and not self.ransac_threshold_px > 0:
+            raise InputError(f"ransac_threshold_px: expected > 0, got {self.ransac_threshold_px}")
+
+
+@dataclass(frozen=True)
+class _Frame:
+    """What the front end keeps of one processed frame."""
+
+    index: int
+    t: float
+    ids: np.ndarray  # (N,) sorted
+    m: np.ndarray  # (N, 3) normalized, rows in ids order
+    R: np.ndarray | None  # (3, 3) motion reference -> this frame (X = R X* + T)
+    T: np.ndarray | None  # (3,)
+
+
+def _normalized_by_id(camera: CameraModel, obs: FrameObservations) -> tuple[np.ndarray, np.ndarray]:
+    """Sorted ids and their normalized coordinates."""
+    order = np.argsort(obs.ids, kind="stable")
+    ids = np.asarray(obs.ids)[order]
+    if len(ids) > 1 and np.any(ids[1:] == ids[:-1]):
+        raise InputError(f"frame {obs.index}: a point id appears twice")
+    m = camera.pixel_to_normalized(np.asarray(obs.uv, dtype=float)[order]) if len(ids) else None
+    return ids, (m if m is not None else np.empty((0, 3)))
+
+
+def _common(a: _Frame, ids: np.ndarray, m: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    _, ia, ib = np.intersect1d(a.ids, ids, assume_unique=True, return_indices=True)
+    return a.m[ia], m[ib]
+
+
+def _projection_jacobian(X: np.ndarray) -> np.ndarray:
+    """(N, 2, 3) Jacobians of pi(X) = X[:2] / X[2]."""
+    z = X[:, 2]
+    J = np.zeros((len(X), 2, 3))
+    J[:, 0, 0] = J[:, 1, 1] = 1.0 / z
+    J[:, 0, 2] = -X[:, 0] / z**2
+    J[:, 1, 2] = -X[:, 1] / z**2
+    return J
+
+
+def _pose_normal_equations(
+    R: np.ndarray,
+    T: np.ndarray,
+    m_ref: np.ndarray,
+    m_cur: np.ndarray,
+    plane: Plane,
+    sigma: float,
+) -> tuple[np.ndarray, np.ndarray]:
+    """Information matrix and gradient of the weighted transfer error.
+
+    The camera pose T_wc = (R^T, -R^T T) is perturbed on the right,
+    T_wc Exp([dtheta; dp]); plane points X*_i = d* m*_i / (n*^T m*_i) are
+    transferred into the current frame, X_i = R X*_i + T, and compared with
+    m_i. Each residual's covariance counts the current and the reference
+    observation: Sigma_i = sigma^2 (I + A_i A_i^T).
+
+    Returns:
+        (6, 6) information J^T Sigma^-1 J and (6,) J^T Sigma^-1 r.
+    """
+    n, d = plane.normal, plane.distance
+    depth = m_ref @ n
+    X_star = d * m_ref / depth[:, None]
+    X = X_star @ R.T + T
+    if np.any(X[:, 2] <= 0):
+        raise InputError("points behind the camera: a plane point has non-positive depth")
+    P = _projection_jacobian(X)
+    residual = m_cur[:, :2] - X[:, :2] / X[:, 2:3]
+    # dX/d[dtheta, dp] for the right perturbation of T_wc: [X^, -I].
+    dX = np.concatenate(
+        (np.stack([skew(x) for x in X]), np.broadcast_to(-np.eye(3), (len(X), 3, 3))), axis=2
+    )
+    J = P @ dX  # (N, 2, 6)
+    dXstar = d * (
+        np.eye(3)[None] / depth[:, None, None]
+        - np.einsum("ni,j->nij", m_ref, n) / depth[:, None, None] ** 2
+    )
+    A = P @ R @ dXstar[:, :, :2]  # (N, 2, 2)
+    cov = sigma**2 * (np.eye(2)[None] + A @ np.transpose(A, (0, 2, 1)))
+    W = np.linalg.inv(cov)
+    JtW = np.transpose(J, (0, 2, 1)) @ W
+    return np.sum(JtW @ J, axis=0), np.einsum("nij,nj->i", JtW, residual)
+
+
+def _retract_motion(
+    R: np.ndarray, T: np.ndarray, delta: np.ndarray
+) -> tuple[np.ndarray, np.ndarray]:
+    """Apply a right perturbation of T_wc to the motion (R, T) = T_cw."""
+    import gtsam  # local: keeps `import hvo_graph.frontend` light
+
+    R_wc, p_wc = camera_pose_from_motion(R, T)
+    pose = gtsam.Pose3(gtsam.Rot3(R_wc), p_wc).retract(delta)
+    R_new = pose.rotation().matrix().T
+    return R_new, -R_new @ pose.translation()
+
+
+class MeasurementFrontEnd:
+    """Streaming front end: one :meth:`process` call per frame, in order.
+
+    The first processed frame is the reference F* (world frame). Points are
+    matched by id. A frame with fewer than ``min_points`` points shared with
+    the reference gets no pose; fewer shared with the previous frame, no
+    velocity.
+    """
+
+    def __init__(self, camera: CameraModel, plane: Plane, config: FrontEndConfig | None = None):
+        self.camera = camera
+        self.plane = plane
+        self.config = config or FrontEndConfig()
+        self._sigma = max(self.config.pixel_sigma, MIN_PIXEL_SIGMA) / camera.mean_focal
+        self._reference: _Frame | None = None
+        self._previous: _Frame | None = None
+        self._normal: np.ndarray | None = None if plane.normal is None else plane.normal
+        self._normal_candidates: list[list[np.ndarray]] = []
+
+    @property
+    def normal(self) -> np.ndarray | None:
+        """n*: the known plane normal, or the one estimated so far (None before)."""
+        return self._normal
+
+    def process(self, obs: FrameObservations) -> FrameMeasurement:
+        """Measure one frame. Returns a record with pose and/or velocity (None when impossible)."""
+        if self._previous is not None and not obs.t > self._previous.t:
+            raise InputError(
+                f"frame {obs.index}: time {obs.t} does not increase (previous {self._previous.t})"
+            )
+        ids, m = _normalized_by_id(self.camera, obs)
+        if self._reference is None:
+            self._reference = _Frame(obs.index, obs.t, ids, m, np.eye(3), np.zeros(3))
+        R, T, pose = self._measure_pose(ids, m)
+        frame = _Frame(obs.index, obs.t, ids, m, R, T)
+        velocity = self._measure_velocity(frame) if self._previous is not None else None
+        self._previous = frame
+        return FrameMeasurement(obs.index, obs.t, pose, velocity, num_points=len(ids))
+
+    # -- pose from H_d -------------------------------------------------------------------------
+
+    def _measure_pose(
+        self, ids: np.ndarray, m: np.ndarray
+    ) -> tuple[np.ndarray | None, np.ndarray | None, PoseMeasurement | None]:
+        assert self._reference is not None
+        m_ref, m_cur = _common(self._reference, ids, m)
+        if len(m_ref) < self.config.min_points:
+            return None, None, None
+        if self.config.pose_solver == "ippe":
+            if self._normal is None:
+                raise InputError("pose_solver 'ippe' needs the plane normal in the camera file")
+            R, T = self._ippe_motion(m_ref, m_cur)
+        else:
+            motion = self._homography_motion(m_ref, m_cur)
+            if motion is None:
+                return None, None, None
+            R, T, inliers = motion
+            m_ref, m_cur = m_ref[inliers], m_cur[inliers]
+        plane = Plane(self.plane.distance, self._normal)
+        info = np.eye(6)
+        for _ in range(self.config.refine_iterations + 1):
+            info, grad = _pose_normal_equations(R, T, m_ref, m_cur, plane, self._sigma)
+            if self.config.pose_solver == "ippe":
+                break  # IPPE is reported as OpenCV gives it, without our refinement
+            delta = np.linalg.solve(info, grad)
+            R, T = _retract_motion(R, T, delta)
+        R_wc, p_wc = camera_pose_from_motion(R, T)
+        covariance = np.linalg.inv(info)
+        return R, T, PoseMeasurement(R_wc, p_wc, 0.5 * (covariance + covariance.T), reference=0)
+
+    def _homography_motion(
+        self, m_ref: np.ndarray, m_cur: np.ndarray
+    ) -> tuple[np.ndarray, np.ndarray, np.ndarray] | None:
+        """(R, T, inlier mask) from H_d with the known (or estimated) n*, or None."""
+        threshold = self.config.ransac_threshold_px
+        H, inliers = estimate_homography(
+            m_ref,
+            m_cur,
+            ransac_threshold=None if threshold is None else threshold / self.camera.mean_focal,
+        )
+        if np.count_nonzero(inliers) < self.config.min_points:
+            return None
+        m_ref, m_cur = m_ref[inliers], m_cur[inliers]
+        H = euclidean_homography(H, m_ref, m_cur)
+        if self._normal is None and not self._estimate_normal(H, m_ref, m_cur):
+            return None
+        R, t = motion_from_homography_known_normal(H, self._normal)
+        return R, self.plane.distance * t, inliers
+
+    def _estimate_normal(self, H: np.ndarray, m_ref: np.ndarray, m_cur: np.ndarray) -> bool:
+        """Pick n* from the decompositions of two frames with enough parallax.
+
+        Each decomposition leaves two physically valid normals; the true n* is
+        the one both frames agree on (the spurious one moves with the motion).
+        """
+        valid = physically_valid_solutions(decompose_homography(H), m_ref, m_cur)
+        if not valid or np.linalg.norm(valid[0].translation) < self.config.min_parallax:
+            return False
+        normals = [s.normal for s in valid]
+        if not self._normal_candidates:
+            self._normal_candidates.append(normals)
+            return False
+        first = self._normal_candidates[0]
+        best = max(((a, b) for a in first for b in normals), key=lambda ab: float(ab[0] @ ab[1]))
+        if float(best[0] @ best[1]) < np.cos(np.deg2rad(5.0)):
+            return False  # no agreement yet (too little motion between the frames)
+        n = best[0] + best[1]
+        self._normal = n / np.linalg.norm(n)
+        return True
+
+    def _ippe_motion(self, m_ref: np.ndarray, m_cur: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        n, d = self._normal, self.plane.distance
+        X_star = d * m_ref / (m_ref @ n)[:, None]
+        ok, rvec, tvec = cv2.solvePnP(
+            np.ascontiguousarray(X_star.reshape(-1, 1, 3)),
+            np.ascontiguousarray(m_cur[:, :2]).reshape(-1, 1, 2),
+            np.eye(3),
+            None,
+            flags=cv2.SOLVEPNP_IPPE,
+        )
+        if not ok:
+            raise InputError("solvePnP (IPPE) failed on this frame's plane points")
+        return cv2.Rodrigues(rvec)[0], tvec.ravel()
+
+    # -- velocity from H_c ---------------------------------------------------------------------
+
+    def _measure_velocity(self, frame: _Frame) -> VelocityMeasurement | None:
+        prev = self._previous
+        assert prev is not None
+        if self._normal is None:
+            return None
+        m0, m1 = _common(prev, frame.ids, frame.m)
+        if len(m0) < self.config.min_points:
+            return None
+        motions = [(f.R, f.T) for f in (prev, frame) if f.R is not None]
+        if not motions:
+            return None
+        # The plane in the camera frame at mid-interval: n(t) = R n*, d(t) = d* + n(t)^T T.
+        normals = [R @ self._normal for R, _ in motions]
+        distances = [
+            self.plane.distance + nt @ T for nt, (_, T) in zip(normals, motions, strict=True)
+        ]
+        n_mid = np.mean(normals, axis=0)
+        n_mid /= np.linalg.norm(n_mid)
+        d_mid = float(np.mean(distances))
+        if d_mid <= 0:
+            return None
+        dt = frame.t - prev.t
+        m_mid = 0.5 * (m0 + m1)
+        mdot = (m1 - m0) / dt
+        w, v = velocity_known_normal(m_mid, mdot, n_mid, d_mid)
+        twist = body_twist_from_scene_motion(w, v)
+        A = velocity_design_matrix(m_mid, n_mid)
+        cov_wu = (2.0 * self._sigma**2 / dt**2) * np.linalg.inv(A.T @ A)
+        # [w_b; v_b] = -[w; d u]
+        J = -np.diag([1.0, 1.0, 1.0, d_mid, d_mid, d_mid])
+        covariance = J @ cov_wu @ J.T
+        return VelocityMeasurement(
+            twist, 0.5 * (covariance + covariance.T), 0.5 * (prev.t + frame.t), dt
+        )
+
+
+def measure_sequence(
+    observations: Iterable[FrameObservations],
+    camera: CameraModel,
+    plane: Plane,
+    config: FrontEndConfig | None = None,
+    **overrides: object,
+) -> list[FrameMeasurement]:
+    """Run the front end over a whole sequence.
+
+    Args:
+        observations: frames in time order (e.g. from :func:`hvo_graph.io.tracks.read_tracks`).
+        camera: the calibrated camera.
+        plane: d* (and n* when known) in the first frame.
+        config: front-end settings; keyword ``overrides`` replace single fields
+            (e.g. ``pixel_sigma=0.5``).
+    Returns:
+        One :class:`FrameMeasurement` per frame.
+    """
+    if overrides:
+        base = config or FrontEndConfig()
+        config = FrontEndConfig(**{**base.__dict__, **overrides})
+    front = MeasurementFrontEnd(camera, plane, config)
+    return [front.process(obs) for obs in observations]

@@ -1,0 +1,212 @@
+"""Front end: tracks -> pose and velocity measurements with covariances.
+
+Ground truth here is built independently of hvo_graph.simulation: plane
+points, a constant body twist integrated exactly with gtsam's Expmap, and a
+pinhole projection written out in the test.
+"""
+
+from __future__ import annotations
+
+import gtsam
+import numpy as np
+import pytest
+
+from hvo_graph.errors import InputError
+from hvo_graph.frontend import FrontEndConfig, MeasurementFrontEnd, measure_sequence
+from hvo_graph.geometry.camera import CameraModel
+from hvo_graph.types import FrameObservations, Plane
+
+CAMERA = CameraModel(fx=800.0, fy=780.0, cx=320.0, cy=240.0, width=640, height=480)
+NORMAL = np.array([0.1, -0.2, 1.0]) / np.linalg.norm([0.1, -0.2, 1.0])
+DISTANCE = 2.0
+TWIST = np.array([0.02, -0.15, 0.1, 0.12, -0.08, 0.1])  # body [w; v]
+FPS = 30.0
+
+
+def plane_points(num: int, rng: np.random.Generator) -> np.ndarray:
+    """Points on n^T X = d in front of the first camera: a square target for 4, else random."""
+    if num == 4:
+        xy = 0.2 * np.array([[-1.0, -1.0], [1.0, -1.0], [1.0, 1.0], [-1.0, 1.0]])
+    else:
+        xy = rng.uniform(-0.35, 0.35, size=(num, 2))
+    m = np.column_stack((xy, np.ones(num)))
+    return DISTANCE * m / (m @ NORMAL)[:, None]
+
+
+def poses(num_frames: int) -> list[gtsam.Pose3]:
+    return [gtsam.Pose3.Expmap(TWIST * k / FPS) for k in range(num_frames)]
+
+
+def observe(points: np.ndarray, pose: gtsam.Pose3) -> np.ndarray:
+    R, p = pose.rotation().matrix(), pose.translation()
+    X = (points - p) @ R  # R^T (X_w - p) for each row
+    return np.column_stack(
+        (CAMERA.fx * X[:, 0] / X[:, 2] + CAMERA.cx, CAMERA.fy * X[:, 1] / X[:, 2] + CAMERA.cy)
+    )
+
+
+def sequence(points, frames, sigma=0.0, rng=None, ids=None):
+    ids = np.arange(len(points)) if ids is None else ids
+    out = []
+    for k, pose in enumerate(frames):
+        uv = observe(points, pose)
+        if sigma:
+            uv = uv + rng.normal(0.0, sigma, uv.shape)
+        out.append(FrameObservations(k, k / FPS, ids, uv))
+    return out
+
+
+def rotation_angle(Ra: np.ndarray, Rb: np.ndarray) -> float:
+    return float(np.linalg.norm(gtsam.Rot3.Logmap(gtsam.Rot3(Ra.T @ Rb))))
+
+
+def test_noise_free_poses_match_ground_truth_including_frame_zero():
+    rng = np.random.default_rng(1)
+    points = plane_points(6, rng)
+    truth = poses(20)
+    frames = measure_sequence(sequence(points, truth), CAMERA, Plane(DISTANCE, NORMAL))
+    for frame, pose in zip(frames, truth, strict=True):
+        assert frame.pose is not None and frame.pose.reference == 0
+        assert np.allclose(frame.pose.position, pose.translation(), atol=1e-9)
+        assert rotation_angle(frame.pose.rotation, pose.rotation().matrix()) < 1e-9
+    assert np.allclose(frames[0].pose.rotation, np.eye(3), atol=1e-12)
+    assert np.allclose(frames[0].pose.position, 0.0, atol=1e-12)
+
+
+def test_noise_free_velocity_is_the_mid_interval_twist():
+    rng = np.random.default_rng(2)
+    points = plane_points(8, rng)
+    frames = measure_sequence(sequence(points, poses(10)), CAMERA, Plane(DISTANCE, NORMAL))
+    assert frames[0].velocity is None
+    for k, frame in enumerate(frames[1:], start=1):
+        vel = frame.velocity
+        assert vel is not None
+        assert vel.t == pytest.approx((k - 0.5) / FPS)
+        assert vel.dt == pytest.approx(1.0 / FPS)
+        # Finite differences of a constant twist: O(dt^2) error in the flow.
+        assert np.allclose(vel.twist, TWIST, atol=2e-3)
+
+
+def test_velocity_sign_is_the_camera_motion():
+    """A camera moving along +z (towards the plane) must report v_z > 0."""
+    rng = np.random.default_rng(3)
+    points = plane_points(5, rng)
+    forward = [gtsam.Pose3(gtsam.Rot3(), np.array([0.0, 0.0, 0.01 * k])) for k in range(3)]
+    frames = measure_sequence(sequence(points, forward), CAMERA, Plane(DISTANCE, NORMAL))
+    assert frames[2].velocity.twist[5] == pytest.approx(0.01 * FPS, rel=1e-3)
+
+
+def monte_carlo(num_points: int, trials: int, sigma_px: float, seed: int):
+    rng = np.random.default_rng(seed)
+    points = plane_points(num_points, rng)
+    truth = poses(8)
+    pose_errors, vel_errors, last = [], [], None
+    for _ in range(trials):
+        frames = measure_sequence(
+            sequence(points, truth, sigma_px, rng),
+            CAMERA,
+            Plane(DISTANCE, NORMAL),
+            pixel_sigma=sigma_px,
+        )
+        last = frames[-1]
+        est = gtsam.Pose3(gtsam.Rot3(last.pose.rotation), last.pose.position)
+        pose_errors.append(gtsam.Pose3.Logmap(est.between(truth[-1])))
+        vel_errors.append(last.velocity.twist - TWIST)
+    return np.array(pose_errors), np.array(vel_errors), last
+
+
+@pytest.mark.parametrize(("num_points", "sigma_px"), [(4, 0.2236), (12, 0.5)])
+def test_propagated_covariances_match_monte_carlo_scatter(num_points, sigma_px):
+    pose_err, vel_err, last = monte_carlo(num_points, 400, sigma_px, seed=num_points)
+    # Pose errors share one reference frame per trial here (as in real use);
+    # the covariance must describe their spread: compare standard deviations.
+    for errors, cov in ((pose_err, last.pose.covariance), (vel_err, last.velocity.covariance)):
+        predicted = np.sqrt(np.diag(cov))
+        empirical = errors.std(axis=0)
+        assert np.all(empirical / predicted > 0.8), (empirical, predicted)
+        assert np.all(empirical / predicted < 1.25), (empirical, predicted)
+        # Normalized estimation error squared: mean ~ 6 for a consistent 6-dof estimate.
+        nees = np.einsum("ni,ij,nj->n", errors, np.linalg.inv(cov), errors)
+        assert 6 * 0.75 < nees.mean() < 6 * 1.3
+
+
+def test_frames_with_too_few_points_get_no_measurement():
+    rng = np.random.default_rng(4)
+    points = plane_points(6, rng)
+    obs = sequence(points, poses(4))
+    thin = FrameObservations(2, obs[2].t, obs[2].ids[:3], obs[2].uv[:3])
+    frames = measure_sequence([obs[0], obs[1], thin, obs[3]], CAMERA, Plane(DISTANCE, NORMAL))
+    assert frames[2].pose is None and frames[2].velocity is None
+    assert frames[2].num_points == 3
+    assert frames[3].pose is not None
+    assert frames[3].velocity is None  # only 3 points shared with frame 2
+
+
+def test_points_appearing_and_vanishing_are_matched_by_id():
+    rng = np.random.default_rng(5)
+    points = plane_points(10, rng)
+    truth = poses(6)
+    obs = []
+    for k, pose in enumerate(truth):
+        visible = np.arange(k, k + 5) % 10  # a sliding window of ids, shuffled
+        rng.shuffle(visible)
+        obs.append(FrameObservations(k, k / FPS, visible, observe(points[visible], pose)))
+    frames = measure_sequence(obs, CAMERA, Plane(DISTANCE, NORMAL))
+    # Frame 1 shares ids 1..4 with the reference (4 points): pose; frame 2 shares 3: none.
+    assert frames[1].pose is not None
+    assert np.allclose(frames[1].pose.position, truth[1].translation(), atol=1e-9)
+    assert frames[2].pose is None
+    # Velocity needs the plane in the current frame: from frame 1's pose for
+    # frame 2, none once two frames in a row have no pose.
+    assert frames[1].velocity is not None and frames[2].velocity is not None
+    assert np.allclose(frames[2].velocity.twist, TWIST, atol=2e-3)
+    assert frames[3].velocity is None
+
+
+def test_unknown_normal_is_estimated_from_parallax():
+    rng = np.random.default_rng(6)
+    points = plane_points(8, rng)
+    truth = poses(60)
+    front = MeasurementFrontEnd(CAMERA, Plane(DISTANCE, None), FrontEndConfig())
+    frames = [front.process(o) for o in sequence(points, truth)]
+    assert front.normal is not None
+    assert np.allclose(front.normal, NORMAL, atol=1e-8)
+    last = frames[-1]
+    assert np.allclose(last.pose.position, truth[-1].translation(), atol=1e-8)
+
+
+def test_ippe_pose_solver_agrees_without_noise():
+    rng = np.random.default_rng(7)
+    points = plane_points(6, rng)
+    truth = poses(5)
+    frames = measure_sequence(
+        sequence(points, truth), CAMERA, Plane(DISTANCE, NORMAL), pose_solver="ippe"
+    )
+    assert np.allclose(frames[-1].pose.position, truth[-1].translation(), atol=1e-7)
+
+
+def test_ransac_rejects_an_outlier_track():
+    rng = np.random.default_rng(8)
+    points = plane_points(12, rng)
+    truth = poses(8)
+    obs = sequence(points, truth, 0.2, rng)
+    bad = []
+    for o in obs:
+        uv = o.uv.copy()
+        uv[0] += 40.0 * o.index  # one track drifting away from its plane point
+        bad.append(FrameObservations(o.index, o.t, o.ids, uv))
+    plain = measure_sequence(bad, CAMERA, Plane(DISTANCE, NORMAL))
+    robust = measure_sequence(bad, CAMERA, Plane(DISTANCE, NORMAL), ransac_threshold_px=2.0)
+    err = [np.linalg.norm(f[-1].pose.position - truth[-1].translation()) for f in (plain, robust)]
+    assert err[1] < 0.01 < err[0]
+
+
+def test_bad_configuration_is_reported():
+    with pytest.raises(InputError, match="pixel_sigma: expected a number >= 0"):
+        FrontEndConfig(pixel_sigma=-1.0)
+    with pytest.raises(InputError, match="pose_solver: expected one of homography, ippe"):
+        FrontEndConfig(pose_solver="pnp")
+    front = MeasurementFrontEnd(CAMERA, Plane(DISTANCE, NORMAL))
+    obs = FrameObservations(0, 0.0, np.array([1, 1]), np.zeros((2, 2)))
+    with pytest.raises(InputError, match="frame 0: a point id appears twice"):
+        front.process(obs)
