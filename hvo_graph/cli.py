@@ -24,14 +24,21 @@ import sys
 import time
 from collections.abc import Callable, Sequence
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 from hvo_graph.errors import InputError
+
+if TYPE_CHECKING:  # the CLI imports the heavy modules lazily, per subcommand
+    from hvo_graph.geometry.camera import CameraModel
+    from hvo_graph.types import FrameObservations
 
 PROG = "hvo-graph"
 #: ``--method`` choices; kept in step with hvo_graph.pipeline.METHODS (checked by the tests).
 METHODS = ("smoother", "batch", "fixed-lag", "kalman", "measurements", "ippe")
 KALMAN_R = ("paper-noisy", "paper-noise-free", "measured")
 ROBUST = ("none", "huber", "cauchy")
+#: RANSAC threshold on H_d for tracks from images (KLT drifts off the plane at edges).
+IMAGE_RANSAC_PX = 2.0
 
 
 def _progress(message: str) -> None:
@@ -115,7 +122,9 @@ def build_parser() -> argparse.ArgumentParser:
     source = est.add_mutually_exclusive_group(required=True)
     source.add_argument("--tracks", metavar="FILE", help="feature tracks CSV (frame,t,id,u,v)")
     source.add_argument(
-        "--images", metavar="PATH", help="image folder or video (not supported yet)"
+        "--images",
+        metavar="PATH",
+        help="image folder (sorted by name; PATH/times.txt or --fps gives the times) or video",
     )
     est.add_argument("--method", choices=METHODS, default=METHODS[0], help="default: smoother")
     est.add_argument("--out", required=True, metavar="DIR", help="output folder (created)")
@@ -149,6 +158,28 @@ def build_parser() -> argparse.ArgumentParser:
         default=S,
         metavar="PX",
         help="pixel noise std (overrides the camera file's noise.pixel_sigma)",
+    )
+    est.add_argument(
+        "--ransac-px",
+        type=_float(0.0, strict=True),
+        default=S,
+        metavar="PX",
+        help="reject tracks off the plane: RANSAC threshold on H_d in pixels "
+        "(default: off for --tracks, 2 px for --images)",
+    )
+    images = est.add_argument_group("image input (--images)")
+    images.add_argument(
+        "--fps",
+        type=_float(0.0, strict=True),
+        default=None,
+        metavar="F",
+        help="frame rate of an image folder without times.txt (default 30) or of a video",
+    )
+    images.add_argument(
+        "--max-features", type=_int_at_least(4), default=None, metavar="N", help="default 200"
+    )
+    images.add_argument(
+        "--save-tracks", metavar="FILE", default=None, help="also write the tracks CSV here"
     )
 
     ev = sub.add_parser(
@@ -192,15 +223,21 @@ def _simulate(args: argparse.Namespace) -> int:
 
 
 def _estimate(args: argparse.Namespace) -> int:
-    if args.images is not None:
-        raise InputError("--images: image input is not supported yet; give --tracks")
     from hvo_graph.io.config import load_scene
-    from hvo_graph.io.tracks import read_tracks
+    from hvo_graph.io.tracks import read_tracks, write_tracks
     from hvo_graph.io.trajectory import write_estimate_dir
     from hvo_graph.pipeline import estimate
 
     scene = load_scene(args.camera)
-    observations = read_tracks(args.tracks)
+    if args.images is not None:
+        observations = _track_images(args, scene.camera)
+        if args.save_tracks:
+            write_tracks(args.save_tracks, observations)
+    else:
+        for flag in ("fps", "max_features", "save_tracks"):
+            if getattr(args, flag) is not None:
+                raise InputError(f"--{flag.replace('_', '-')}: only for --images input")
+        observations = read_tracks(args.tracks)
     options = {
         key: getattr(args, key)
         for key in (
@@ -215,6 +252,10 @@ def _estimate(args: argparse.Namespace) -> int:
         )
         if hasattr(args, key)
     }
+    if hasattr(args, "ransac_px"):
+        options["ransac_threshold_px"] = args.ransac_px
+    elif args.images is not None:
+        options["ransac_threshold_px"] = IMAGE_RANSAC_PX
     if "robust" in options and options["robust"] == "none":
         options["robust"] = None
     _progress(f"estimating {len(observations)} frames with --method {args.method}")
@@ -224,6 +265,20 @@ def _estimate(args: argparse.Namespace) -> int:
     write_estimate_dir(args.out, trajectory)
     print(f"{PROG} estimate: wrote {len(trajectory)} frames ({args.method}) to {args.out}")
     return 0
+
+
+def _track_images(args: argparse.Namespace, camera: CameraModel) -> list[FrameObservations]:
+    from hvo_graph.tracking import TrackerConfig, tracks_from_images
+
+    config = (
+        TrackerConfig()
+        if args.max_features is None
+        else TrackerConfig(
+            max_features=args.max_features, min_tracked=min(args.max_features // 2, 100)
+        )
+    )
+    _progress(f"tracking features in {args.images}")
+    return tracks_from_images(args.images, camera, fps=args.fps, config=config)
 
 
 def _evaluate(args: argparse.Namespace) -> int:
