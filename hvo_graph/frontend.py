@@ -89,6 +89,11 @@ class FrontEndConfig:
         pose_solver: "homography" (the paper's H_d) or "ippe" (OpenCV solvePnP).
         min_parallax: ||T|| / d* a frame needs before its decomposition is
             used to estimate an unknown plane normal.
+        keyframe_min_points: below this many points shared with the reference,
+            the previous frame becomes the new reference (keyframe) if it shares
+            at least twice as many (or when the reference shares fewer than
+            ``min_points``); poses are then measured against the keyframe.
+            None: always measure against frame 0.
     """
 
     pixel_sigma: float = DEFAULT_PIXEL_SIGMA
@@ -97,6 +102,7 @@ class FrontEndConfig:
     refine_iterations: int = 2
     pose_solver: str = "homography"
     min_parallax: float = 0.05
+    keyframe_min_points: int | None = 8
 
     def __post_init__(self) -> None:
         if not (np.isfinite(self.pixel_sigma) and self.pixel_sigma >= 0):
@@ -207,9 +213,11 @@ class MeasurementFrontEnd:
     """Streaming front end: one :meth:`process` call per frame, in order.
 
     The first processed frame is the reference F* (world frame). Points are
-    matched by id. A frame with fewer than ``min_points`` points shared with
-    the reference gets no pose; fewer shared with the previous frame, no
-    velocity.
+    matched by id. When tracks leave the view the reference moves to a
+    keyframe (see ``FrontEndConfig.keyframe_min_points``) and pose
+    measurements become relative to it (``PoseMeasurement.reference``). A frame
+    with fewer than ``min_points`` points shared with the reference gets no
+    pose; fewer shared with the previous frame, no velocity.
     """
 
     def __init__(self, camera: CameraModel, plane: Plane, config: FrontEndConfig | None = None):
@@ -247,21 +255,34 @@ class MeasurementFrontEnd:
     def _measure_pose(
         self, ids: np.ndarray, m: np.ndarray
     ) -> tuple[np.ndarray | None, np.ndarray | None, PoseMeasurement | None]:
+        """Pose of the current frame against the reference (frame 0 or the latest keyframe).
+
+        Returns the motion (R, T) from the world frame into the current frame
+        (for the velocity's plane) and the pose measurement T_rc, or Nones.
+        """
         assert self._reference is not None
         m_ref, m_cur = _common(self._reference, ids, m)
+        if self._switch_keyframe(len(m_ref), ids, m):
+            self._reference = self._previous
+            m_ref, m_cur = _common(self._reference, ids, m)
+        ref = self._reference
         if len(m_ref) < self.config.min_points:
             return None, None, None
+        if self.config.pose_solver == "ippe" and self._normal is None:
+            raise InputError("pose_solver 'ippe' needs the plane normal in the camera file")
+        if self._normal is None:  # only while still on frame 0: estimate n* from parallax
+            motion = self._homography_motion(m_ref, m_cur, None)
+            if motion is None:
+                return None, None, None
+        plane = self._plane_in(ref)
         if self.config.pose_solver == "ippe":
-            if self._normal is None:
-                raise InputError("pose_solver 'ippe' needs the plane normal in the camera file")
-            R, T = self._ippe_motion(m_ref, m_cur)
+            R, T = self._ippe_motion(m_ref, m_cur, plane)
         else:
-            motion = self._homography_motion(m_ref, m_cur)
+            motion = self._homography_motion(m_ref, m_cur, plane)
             if motion is None:
                 return None, None, None
             R, T, inliers = motion
             m_ref, m_cur = m_ref[inliers], m_cur[inliers]
-        plane = Plane(self.plane.distance, self._normal)
         info = np.eye(6)
         for _ in range(self.config.refine_iterations + 1):
             info, grad = _pose_normal_equations(R, T, m_ref, m_cur, plane, self._sigma)
@@ -269,14 +290,43 @@ class MeasurementFrontEnd:
                 break  # IPPE is reported as OpenCV gives it, without our refinement
             delta = np.linalg.solve(info, grad)
             R, T = _retract_motion(R, T, delta)
-        R_wc, p_wc = camera_pose_from_motion(R, T)
+        R_rc, p_rc = camera_pose_from_motion(R, T)
         covariance = np.linalg.inv(info)
-        return R, T, PoseMeasurement(R_wc, p_wc, 0.5 * (covariance + covariance.T), reference=0)
+        pose = PoseMeasurement(R_rc, p_rc, 0.5 * (covariance + covariance.T), reference=ref.index)
+        # Motion world -> current: X = R (R_ref X_w + T_ref) + T.
+        return R @ ref.R, R @ ref.T + T, pose
+
+    def _switch_keyframe(self, shared_with_reference: int, ids: np.ndarray, m: np.ndarray) -> bool:
+        """Make the previous frame the reference when it sees clearly more of the current points.
+
+        Each switch chains one more relative pose (and its error), so it happens
+        only when the reference shares fewer than ``min_points`` points, or
+        fewer than ``keyframe_min_points`` while the previous frame shares at
+        least twice as many.
+        """
+        prev, limit = self._previous, self.config.keyframe_min_points
+        if limit is None or prev is None or prev.index == self._reference.index or prev.R is None:
+            return False
+        if shared_with_reference >= limit:
+            return False
+        shared_with_previous = len(np.intersect1d(prev.ids, ids, assume_unique=True))
+        if shared_with_reference < self.config.min_points:
+            return shared_with_previous >= self.config.min_points
+        return shared_with_previous >= 2 * shared_with_reference
+
+    def _plane_in(self, frame: _Frame) -> Plane:
+        """The plane in ``frame``'s camera frame: n = R n*, d = d* + n^T T."""
+        n = frame.R @ self._normal
+        return Plane(self.plane.distance + float(n @ frame.T), n)
 
     def _homography_motion(
-        self, m_ref: np.ndarray, m_cur: np.ndarray
+        self, m_ref: np.ndarray, m_cur: np.ndarray, plane: Plane | None
     ) -> tuple[np.ndarray, np.ndarray, np.ndarray] | None:
-        """(R, T, inlier mask) from H_d with the known (or estimated) n*, or None."""
+        """(R, T, inlier mask) from H_d with the plane in the reference frame.
+
+        With ``plane`` None (n* unknown), feeds the normal estimation and
+        returns None until n* is known.
+        """
         threshold = self.config.ransac_threshold_px
         H, inliers = estimate_homography(
             m_ref,
@@ -287,10 +337,14 @@ class MeasurementFrontEnd:
             return None
         m_ref, m_cur = m_ref[inliers], m_cur[inliers]
         H = euclidean_homography(H, m_ref, m_cur)
-        if self._normal is None and not self._estimate_normal(H, m_ref, m_cur):
-            return None
-        R, t = motion_from_homography_known_normal(H, self._normal)
-        return R, self.plane.distance * t, inliers
+        if plane is None:
+            return (
+                (np.eye(3), np.zeros(3), inliers)
+                if self._estimate_normal(H, m_ref, m_cur)
+                else None
+            )
+        R, t = motion_from_homography_known_normal(H, plane.normal)
+        return R, plane.distance * t, inliers
 
     def _estimate_normal(self, H: np.ndarray, m_ref: np.ndarray, m_cur: np.ndarray) -> bool:
         """Pick n* from the decompositions of two frames with enough parallax.
@@ -313,8 +367,10 @@ class MeasurementFrontEnd:
         self._normal = n / np.linalg.norm(n)
         return True
 
-    def _ippe_motion(self, m_ref: np.ndarray, m_cur: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        n, d = self._normal, self.plane.distance
+    def _ippe_motion(
+        self, m_ref: np.ndarray, m_cur: np.ndarray, plane: Plane
+    ) -> tuple[np.ndarray, np.ndarray]:
+        n, d = plane.normal, plane.distance
         X_star = d * m_ref / (m_ref @ n)[:, None]
         ok, rvec, tvec = cv2.solvePnP(
             np.ascontiguousarray(X_star.reshape(-1, 1, 3)),

@@ -151,7 +151,7 @@ def test_points_appearing_and_vanishing_are_matched_by_id():
         visible = np.arange(k, k + 5) % 10  # a sliding window of ids, shuffled
         rng.shuffle(visible)
         obs.append(FrameObservations(k, k / FPS, visible, observe(points[visible], pose)))
-    frames = measure_sequence(obs, CAMERA, Plane(DISTANCE, NORMAL))
+    frames = measure_sequence(obs, CAMERA, Plane(DISTANCE, NORMAL), keyframe_min_points=None)
     # Frame 1 shares ids 1..4 with the reference (4 points): pose; frame 2 shares 3: none.
     assert frames[1].pose is not None
     assert np.allclose(frames[1].pose.position, truth[1].translation(), atol=1e-9)
@@ -161,6 +161,32 @@ def test_points_appearing_and_vanishing_are_matched_by_id():
     assert frames[1].velocity is not None and frames[2].velocity is not None
     assert np.allclose(frames[2].velocity.twist, TWIST, atol=2e-3)
     assert frames[3].velocity is None
+
+
+def test_keyframes_keep_poses_coming_when_the_reference_points_leave():
+    rng = np.random.default_rng(9)
+    points = plane_points(45, rng)
+    truth = poses(30)
+    obs = []
+    for k, pose in enumerate(truth):
+        visible = np.arange(k, k + 12)  # every frame loses one point and gains another
+        obs.append(FrameObservations(k, k / FPS, visible, observe(points[visible], pose)))
+    frames = measure_sequence(obs, CAMERA, Plane(DISTANCE, NORMAL), keyframe_min_points=8)
+    references = [f.pose.reference for f in frames]
+    # Frame 7 shares 5 points with frame 0 (< 8) and 11 with frame 6 (>= 2 x 5).
+    assert references[:8] == [0] * 7 + [6]
+    assert references[-1] == 24
+    assert all(f.velocity is not None for f in frames[1:])
+    # Chaining every relative pose through its keyframe reproduces the truth.
+    world = {}
+    for frame, pose in zip(frames, truth, strict=True):
+        relative = gtsam.Pose3(gtsam.Rot3(frame.pose.rotation), frame.pose.position)
+        ref = frame.pose.reference
+        world[frame.index] = relative if frame.index == ref else world[ref].compose(relative)
+        assert np.allclose(world[frame.index].translation(), pose.translation(), atol=1e-8)
+        assert (
+            rotation_angle(world[frame.index].rotation().matrix(), pose.rotation().matrix()) < 1e-8
+        )
 
 
 def test_unknown_normal_is_estimated_from_parallax():

@@ -273,14 +273,43 @@ def test_frames_without_measurements_predict_only():
 # -- measurement conversion ------------------------------------------------------------
 
 
-def test_pose_reference_must_be_world_frame():
+def test_state_measurement_takes_world_frame_poses_only():
     frame = FrameMeasurement(7, 0.2, pose=pose_frame(7, 0.2, 0.0, 0.0, 0.0, [0, 0, 0], reference=5))
     with pytest.raises(
         InputError,
         match=r"^frame 7: pose\.reference is 5, expected 0: the paper's Kalman filter measures "
         r"pose against the world frame only \(no keyframes\)$",
     ):
-        KalmanBaseline().update(frame)
+        state_measurement(frame)
+
+
+def test_keyframe_poses_are_chained_through_the_filters_own_keyframe_estimate():
+    first = [
+        FrameMeasurement(0, 0.0, pose=pose_frame(0, 0.0, 0.0, 0.0, 0.0, [0, 0, 0])),
+        FrameMeasurement(1, 0.1, pose=pose_frame(1, 0.1, 0.05, -0.02, 0.1, [0.3, -0.1, 0.2])),
+    ]
+    chained = KalmanBaseline(random_init=False, r_preset="paper-noise-free")
+    direct = KalmanBaseline(random_init=False, r_preset="paper-noise-free")
+    keyframe = [chained.update(f) for f in first][-1]
+    for f in first:
+        direct.update(f)
+    relative = pose_frame(2, 0.2, 0.01, 0.03, -0.02, [0.05, 0.02, -0.04], reference=1)
+    chained.update(FrameMeasurement(2, 0.2, pose=relative))
+    # The same pose in the world frame, composed here with the filter's estimate of frame 1.
+    world = PoseMeasurement(
+        keyframe.rotation @ relative.rotation,
+        keyframe.rotation @ relative.position + keyframe.position,
+        relative.covariance,
+    )
+    direct.update(FrameMeasurement(2, 0.2, pose=world))
+    assert np.allclose(chained.x, direct.x, atol=1e-12)
+    assert np.allclose(chained.P, direct.P, atol=1e-15)
+    with pytest.raises(
+        InputError, match=r"^pose measurement refers to frame 9, which was not estimated before$"
+    ):
+        chained.update(
+            FrameMeasurement(3, 0.3, pose=pose_frame(3, 0.3, 0, 0, 0, [0, 0, 0], reference=9))
+        )
 
 
 def test_bad_constructor_arguments():

@@ -11,8 +11,16 @@ from __future__ import annotations
 from abc import ABC, abstractmethod
 from collections.abc import Iterable
 
+import numpy as np
+
 from hvo_graph.errors import InputError
-from hvo_graph.types import FrameMeasurement, StateEstimate, Trajectory, trajectory_from_states
+from hvo_graph.types import (
+    FrameMeasurement,
+    PoseMeasurement,
+    StateEstimate,
+    Trajectory,
+    trajectory_from_states,
+)
 
 
 class Estimator(ABC):
@@ -40,6 +48,30 @@ class Estimator(ABC):
         estimate = self._update(frame)
         self._online.append(estimate)
         return estimate
+
+    def pose_in_world(self, pose: PoseMeasurement) -> PoseMeasurement:
+        """A keyframe-relative pose T_rc as a world pose T_wc = T_wr T_rc.
+
+        T_wr is this estimator's own online estimate of the keyframe, taken as
+        exact: the covariance (right perturbation of T_rc) carries over
+        unchanged, since T_wr T_rc Exp(delta) = T_wc Exp(delta). Estimators
+        without keyframe states (the raw measurements, the paper's filter) use
+        this; the smoother adds a between factor instead.
+        """
+        if pose.reference == 0:
+            return pose
+        keyframe = next((s for s in reversed(self._online) if s.index == pose.reference), None)
+        if keyframe is None:
+            raise InputError(
+                f"pose measurement refers to frame {pose.reference}, which was not estimated before"
+            )
+        R_wr, p_wr = keyframe.rotation, keyframe.position
+        return PoseMeasurement(
+            R_wr @ pose.rotation,
+            R_wr @ np.asarray(pose.position) + p_wr,
+            pose.covariance,
+            reference=0,
+        )
 
     def online_trajectory(self) -> Trajectory:
         """The online estimate of every frame so far (each as it was right after its update)."""

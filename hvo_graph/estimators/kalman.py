@@ -26,6 +26,7 @@ that rotates the measured v into W first.
 
 from __future__ import annotations
 
+import dataclasses
 from collections.abc import Sequence
 from dataclasses import dataclass
 
@@ -448,6 +449,8 @@ class KalmanBaseline(Estimator):
         self._t_prev = t
         # predict-only frames leave the last update's H, R, y, S, K undefined
         self.H = self.R = self.y = self.S = self.K = None
+        if frame.pose is not None and frame.pose.reference != 0:
+            frame = dataclasses.replace(frame, pose=self.pose_in_world(frame.pose))
         p, w, r = self.x[ANGLES]
         meas = state_measurement(
             frame,

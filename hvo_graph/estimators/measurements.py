@@ -41,12 +41,8 @@ class RawMeasurements(Estimator):
     def _update(self, frame: FrameMeasurement) -> StateEstimate:
         pose = self._poses[-1] if self._poses else gtsam.Pose3()
         if frame.pose is not None:
-            measured = gtsam.Pose3(gtsam.Rot3(frame.pose.rotation), frame.pose.position)
-            if frame.pose.reference == 0:
-                pose = measured
-            else:
-                ref = self._pose_of_frame(frame.pose.reference)
-                pose = ref.compose(measured)
+            world = self.pose_in_world(frame.pose)
+            pose = gtsam.Pose3(gtsam.Rot3(world.rotation), world.position)
         twist: np.ndarray | None
         if self.velocity_from == "flow":
             twist = (
@@ -65,12 +61,6 @@ class RawMeasurements(Estimator):
         return StateEstimate(
             frame.index, frame.t, pose.rotation().matrix(), pose.translation(), online_twist
         )
-
-    def _pose_of_frame(self, index: int) -> gtsam.Pose3:
-        for state, pose in zip(reversed(self._online), reversed(self._poses), strict=False):
-            if state.index == index:
-                return pose
-        raise InputError(f"pose measurement refers to frame {index}, which was not seen before")
 
     def trajectory(self) -> Trajectory:
         traj = self.online_trajectory()
