@@ -138,7 +138,9 @@ def _dlt_system(src: np.ndarray, dst: np.ndarray) -> np.ndarray:
 
 def _degeneracy_ratio(A: np.ndarray) -> tuple[float, np.ndarray]:
     """sigma_8 / sigma_1 of a (2N, 9) system (0 when rank < 8) and its right singular vectors."""
-    _, s, Vt = np.linalg.svd(A, full_matrices=True)
+    # Full U is (2N, 2N): only ask for it when the system is short (N = 4), where
+    # Vt must still include the null vector.
+    _, s, Vt = np.linalg.svd(A, full_matrices=A.shape[0] < 9)
     s9 = np.zeros(9)
     s9[: len(s)] = s
     ratio = s9[7] / s9[0] if s9[0] > 0 else 0.0
