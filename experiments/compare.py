@@ -1,0 +1,517 @@
+"""Monte Carlo comparison of every estimator on the paper's (noisy) scenario.
+
+Each seed simulates the scenario once (pixel noise, and the Kalman filters'
+random initial state, drawn from the seed), measures it once per front end and
+runs every method on the same measurements (hvo_graph.experiment.run_seed).
+RMSE and max of position (m), orientation (deg), linear velocity (m/s) and
+angular velocity (rad/s) are computed after the first ``--skip`` seconds; the
+tables give their mean over seeds with a Student-t 95 % confidence interval,
+and the mean over seeds of per-seed RMSE ratios (paired: both methods saw the
+same data). Same seeds, same tables.
+
+Writes ``<out-dir>/results.md`` (tables, seeds, the command), ``<out-dir>/results.csv``
+(one row per seed and method) and ``<out-dir>/figures/compare_error_over_time``
+and ``compare_error_distribution`` (.png and .svg); prints the tables.
+
+Usage::
+
+    python experiments/compare.py                 # 50 seeds, paper noisy scenario -> docs/
+    python experiments/compare.py --seeds 20 --workers 2
+    python experiments/compare.py --quick         # 5 seeds of 4 s -> out/compare-quick/
+"""
+
+from __future__ import annotations
+
+import argparse
+import platform
+import shlex
+import sys
+from collections.abc import Sequence
+from importlib.metadata import PackageNotFoundError, version
+from pathlib import Path
+
+import numpy as np
+
+from hvo_graph.errors import InputError
+from hvo_graph.experiment import (
+    METHOD_LABELS,
+    METHOD_TITLES,
+    QUANTITIES,
+    SeedResult,
+    csv_text,
+    describe_seeds,
+    format_ci,
+    format_value,
+    markdown_table,
+    mean_error_over_time,
+    method_statistics,
+    metric_values,
+    ratio_statistics,
+    run_seeds,
+    summary_columns,
+    summary_row,
+    write_text_atomic,
+)
+from hvo_graph.simulation import PAPER_NOISE_VAR, ScenarioConfig, paper_scenario
+
+DEFAULT_SEEDS = 50
+#: The repository (outputs default to its docs/ folder, wherever the script is run from).
+ROOT = Path(__file__).resolve().parents[1]
+DEFAULT_OUT_DIR = ROOT / "docs"
+#: ``--quick``: what ``make demo`` runs (seconds, not minutes).
+QUICK_SEEDS = 5
+QUICK_DURATION = 4.0
+QUICK_OUT_DIR = ROOT / "out" / "compare-quick"
+
+#: RMSE ratios reported, (numerator, denominator): < 1 means the numerator is better.
+RATIOS: tuple[tuple[str, str], ...] = (
+    ("smoother", "kalman"),
+    ("smoother", "measurements"),
+    ("smoother", "ippe"),
+    ("smoother", "kalman-measured"),
+    ("smoother-online", "kalman"),
+)
+
+#: Acceptance bounds of issue 4 on the RMSE ratios (paper noisy scenario, 20 seeds,
+#: errors after the first second).
+TARGETS: dict[tuple[str, str], dict[str, float]] = {
+    ("smoother", "kalman"): {
+        "position": 0.6,
+        "orientation": 0.85,
+        "linear_velocity": 0.5,
+        "angular_velocity": 0.4,
+    },
+    ("smoother", "measurements"): {
+        "position": 0.8,
+        "orientation": 0.85,
+        "linear_velocity": 0.2,
+        "angular_velocity": 0.3,
+    },
+    ("smoother", "ippe"): {"position": 0.8, "orientation": 0.85},
+    ("smoother", "kalman-measured"): {q: 0.95 for q, _, _ in QUANTITIES},
+    ("smoother-online", "kalman"): {"position": 0.8, "angular_velocity": 0.6},
+}
+
+ERROR_FIGSIZE = (11.0, 7.5)  # inches; PNG 1650 x 1125 px at 150 dpi
+DISTRIBUTION_FIGSIZE = (11.0, 8.0)  # PNG 1650 x 1200 px
+
+METHOD_NOTES: dict[str, str] = {
+    "measurements": "the front end's per-frame pose (discrete homography H_d) and twist "
+    "(continuous homography H_c), no fusion",
+    "kalman": "the paper's 12-state Kalman filter with the paper's noisy-run R_k "
+    "(docs/kalman.md), random initial state from the seed",
+    "kalman-measured": "the same filter given the smoother's information: R_k = diagonal of "
+    "the front end's covariances, process noise equal to the smoother's white-noise "
+    "acceleration, body velocity rotated into the world frame",
+    "smoother": "GTSAM factor graph solved by ISAM2, final (smoothed) trajectory",
+    "smoother-online": "the same ISAM2 run, each frame's estimate right after its own update "
+    "(causal)",
+    "batch": "the same factor graph, Levenberg-Marquardt over the whole sequence",
+    "fixed-lag": "the same factor graph, GTSAM incremental fixed-lag smoother (1 s window)",
+    "ippe": "per-frame OpenCV solvePnP (SOLVEPNP_IPPE) on the plane points, twist from "
+    "differencing consecutive poses",
+}
+
+
+def _positive_int(text: str) -> int:
+    try:
+        value = int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected an integer >= 1, got {text!r}") from None
+    if value < 1:
+        raise argparse.ArgumentTypeError(f"expected an integer >= 1, got {text!r}")
+    return value
+
+
+def _seed_list(text: str) -> list[int]:
+    try:
+        seeds = [int(s) for s in text.replace(",", " ").split()]
+    except ValueError:
+        raise argparse.ArgumentTypeError(
+            f"expected comma-separated integers >= 0, got {text!r}"
+        ) from None
+    if not seeds or min(seeds) < 0:
+        raise argparse.ArgumentTypeError(f"expected comma-separated integers >= 0, got {text!r}")
+    if len(set(seeds)) != len(seeds):
+        raise argparse.ArgumentTypeError(f"seed listed twice in {text!r}")
+    return seeds
+
+
+def _methods(text: str) -> list[str]:
+    methods = [m for m in text.replace(",", " ").split() if m]
+    for m in methods:
+        if m not in METHOD_LABELS:
+            raise argparse.ArgumentTypeError(
+                f"unknown method {m!r}; expected some of {', '.join(METHOD_LABELS)}"
+            )
+    if not methods or len(set(methods)) != len(methods):
+        raise argparse.ArgumentTypeError(f"expected distinct methods, got {text!r}")
+    return methods
+
+
+def _nonnegative_float(text: str) -> float:
+    try:
+        value = float(text)
+    except ValueError:
+        value = float("nan")
+    if not value >= 0 or value == float("inf"):
+        raise argparse.ArgumentTypeError(f"expected a finite number >= 0, got {text!r}")
+    return value
+
+
+def _positive_float(text: str) -> float:
+    value = _nonnegative_float(text)
+    if value == 0:
+        raise argparse.ArgumentTypeError(f"expected a number > 0, got {text!r}")
+    return value
+
+
+def build_parser() -> argparse.ArgumentParser:
+    parser = argparse.ArgumentParser(
+        prog="compare.py",
+        description="Monte Carlo comparison of the estimators (RMSE, max, 95 % CI over seeds).",
+    )
+    seeds = parser.add_mutually_exclusive_group()
+    seeds.add_argument(
+        "--seeds", type=_positive_int, help=f"use seeds 0..N-1 (default {DEFAULT_SEEDS})"
+    )
+    seeds.add_argument("--seed-list", type=_seed_list, help="explicit seeds, e.g. 3,5,8")
+    parser.add_argument(
+        "--noise-var",
+        type=_nonnegative_float,
+        default=PAPER_NOISE_VAR,
+        help=f"pixel noise variance, px^2 (default {PAPER_NOISE_VAR}, the paper's noisy run)",
+    )
+    parser.add_argument("--duration", type=_positive_float, help="seconds (default 10)")
+    parser.add_argument("--fps", type=_positive_float, default=30.0, help="frames per second")
+    parser.add_argument("--num-points", type=_positive_int, default=4, help="plane points (>= 4)")
+    parser.add_argument(
+        "--methods",
+        type=_methods,
+        default=list(METHOD_LABELS),
+        help=f"comma-separated subset of {','.join(METHOD_LABELS)}",
+    )
+    parser.add_argument(
+        "--skip",
+        type=_nonnegative_float,
+        default=1.0,
+        help="seconds at the start left out of the errors (default 1.0)",
+    )
+    parser.add_argument(
+        "--workers", type=_positive_int, help="worker processes (default: os.cpu_count())"
+    )
+    parser.add_argument(
+        "--out-dir",
+        type=Path,
+        help="output folder (default: the repository's docs/; out/compare-quick/ with --quick)",
+    )
+    parser.add_argument("--no-figures", action="store_true", help="skip the figures")
+    parser.add_argument("--no-progress", action="store_true", help="no progress bar on stderr")
+    parser.add_argument(
+        "--quick",
+        action="store_true",
+        help=f"short demo: {QUICK_SEEDS} seeds of {QUICK_DURATION:g} s (unless set explicitly)",
+    )
+    return parser
+
+
+def build_configs(args: argparse.Namespace) -> list[ScenarioConfig]:
+    """One ScenarioConfig per seed (raises InputError for a bad scenario)."""
+    return [
+        paper_scenario(
+            noise_var=args.noise_var,
+            duration=args.duration,
+            fps=args.fps,
+            num_points=args.num_points,
+            seed=seed,
+        )
+        for seed in args.seed_values
+    ]
+
+
+def _pretty_number(x: float) -> str:
+    return f"{x:g}"
+
+
+def scenario_text(config: ScenarioConfig, skip: float) -> str:
+    """One sentence naming the scenario's settings."""
+    paper = (
+        "the paper's noisy scenario"
+        if config.noise_var == PAPER_NOISE_VAR
+        else "the paper's scenario"
+    )
+    return (
+        f"{paper} (hvo_graph.simulation.paper_scenario): pixel noise variance "
+        f"{_pretty_number(config.noise_var)} px^2 (sigma {config.pixel_sigma:.4g} px), "
+        f"{_pretty_number(config.fps)} fps, {_pretty_number(config.duration)} s "
+        f"({config.num_frames} frames), {config.num_points} plane points; errors over "
+        f"t >= {_pretty_number(skip)} s"
+    )
+
+
+def _titled(label: str) -> str:
+    return f"{METHOD_TITLES[label]} (`{label}`)"
+
+
+def tables_markdown(results: Sequence[SeedResult], methods: Sequence[str]) -> str:
+    """The result tables (Markdown): RMSE with CI, mean max, RMSE ratios, issue 4 targets."""
+    header = ["method"] + [f"{title} [{unit}]" for _, title, unit in QUANTITIES]
+    rmse_rows, max_rows = [], []
+    for m in methods:
+        rmse = method_statistics(results, m, "rmse")
+        peak = method_statistics(results, m, "max")
+        rmse_rows.append([_titled(m)] + [format_ci(rmse[q]) for q, _, _ in QUANTITIES])
+        max_rows.append(
+            [_titled(m)]
+            + [format_value(None if peak[q] is None else peak[q].mean) for q, _, _ in QUANTITIES]
+        )
+    n = len(results)
+    parts = [
+        f"### RMSE: mean over {n} seeds ± 95 % confidence half-width",
+        "",
+        markdown_table(header, rmse_rows),
+        "",
+        f"### Max error: mean over {n} seeds of each seed's largest error",
+        "",
+        markdown_table(header, max_rows),
+    ]
+    ratios = [(a, b) for a, b in RATIOS if a in methods and b in methods]
+    if ratios:
+        ratio_rows, target_rows = [], []
+        stats = {pair: ratio_statistics(results, *pair) for pair in ratios}
+        for a, b in ratios:
+            ratio_rows.append(
+                [f"{METHOD_TITLES[a]} / {METHOD_TITLES[b]}"]
+                + [format_ci(stats[(a, b)][q]) for q, _, _ in QUANTITIES]
+            )
+            for q, title, _ in QUANTITIES:
+                bound = TARGETS.get((a, b), {}).get(q)
+                ci = stats[(a, b)][q]
+                if bound is None or ci is None:
+                    continue
+                met = "yes" if ci.mean <= bound else "**no**"
+                target_rows.append(
+                    [
+                        f"{METHOD_TITLES[a]} / {METHOD_TITLES[b]}",
+                        title,
+                        format_ci(ci),
+                        f"<= {bound:g}",
+                        met,
+                    ]
+                )
+        parts += [
+            "",
+            "### RMSE ratios: mean over seeds of the per-seed ratio ± 95 % confidence half-width",
+            "",
+            "Each seed's RMSE of the first method divided by the second's on the same data, then "
+            "averaged (the mean of per-seed ratios, not the ratio of mean RMSEs); below 1 the "
+            "first method is more accurate.",
+            "",
+            markdown_table(["ratio"] + [title for _, title, _ in QUANTITIES], ratio_rows),
+        ]
+        if target_rows:
+            parts += [
+                "",
+                "### Targets of issue 4 (paper noisy scenario, errors after the first second)",
+                "",
+                "A target is met when the mean per-seed ratio is at or below the bound.",
+                "",
+                markdown_table(
+                    ["ratio", "quantity", "measured", "target", "met"], target_rows, align="llrrl"
+                ),
+            ]
+    return "\n".join(parts) + "\n"
+
+
+def _versions() -> str:
+    found = []
+    for package in ("numpy", "gtsam", "opencv-python-headless", "matplotlib"):
+        try:
+            found.append(f"{package} {version(package)}")
+        except PackageNotFoundError:
+            continue
+    return f"Python {platform.python_version()}, " + ", ".join(found)
+
+
+def results_markdown(
+    results: Sequence[SeedResult],
+    methods: Sequence[str],
+    *,
+    command: str,
+    skip: float,
+    figures: Sequence[str] = (),
+) -> str:
+    """The whole ``results.md`` page."""
+    config = results[0].config
+    seeds = [r.seed for r in results]
+    lines = [
+        "# Results: Monte Carlo comparison of the estimators",
+        "",
+        "Generated by `experiments/compare.py`; do not edit by hand (`make figures` "
+        "regenerates it, and the same seeds give the same numbers).",
+        "",
+        f"- Command: `{command}`",
+        f"- Scenario: {scenario_text(config, skip)}.",
+        f"- Seeds: {describe_seeds(seeds)} ({len(seeds)} seeds); each seed draws the pixel noise "
+        "and the Kalman filters' random initial state. Per-seed numbers: `results.csv`.",
+        f"- Software: {_versions()}.",
+        "- Errors: position ||p - p_gt|| (m), orientation angle of R_gt^T R (deg), body linear "
+        "velocity ||v - v_gt|| (m/s), body angular velocity ||w - w_gt|| (rad/s); RMSE and max "
+        "over the frames of each seed, then the mean over seeds with a Student-t 95 % "
+        "confidence interval.",
+        "",
+        tables_markdown(results, methods).rstrip("\n"),
+        "",
+        "### Methods",
+        "",
+    ]
+    lines += [f"- {_titled(m)}: {METHOD_NOTES[m]}." for m in methods]
+    if figures:
+        lines += ["", "### Figures", ""]
+        lines += [f"![{Path(f).stem.replace('_', ' ')}]({f})" for f in figures]
+    return "\n".join(lines) + "\n"
+
+
+def results_csv(results: Sequence[SeedResult], methods: Sequence[str]) -> str:
+    """One row per (seed, method): every RMSE and max, and the frames evaluated."""
+    rows = [[r.seed, m, *summary_row(r.summaries[m])] for r in results for m in methods]
+    return csv_text(["seed", "method", *summary_columns()], rows)
+
+
+def plot_error_over_time(
+    results: Sequence[SeedResult], methods: Sequence[str], path: Path, *, skip: float
+) -> list[Path]:
+    """Four panels: mean over seeds of each method's per-frame error against time (log y)."""
+    from hvo_graph.plotting import figure_style, log_axis, method_style, new_figure, save_figure
+
+    with figure_style():
+        fig, axes = new_figure(*ERROR_FIGSIZE, nrows=2, ncols=2, sharex=True)
+        curves = {m: mean_error_over_time(results, m) for m in methods}
+        for ax, (q, title, unit) in zip(axes.flat, QUANTITIES, strict=True):
+            evaluated, everything = [], []
+            for m in methods:
+                t, y = curves[m][0], curves[m][1][q]
+                ok = np.isfinite(y) & (y > 0)
+                ax.plot(t[ok], y[ok], **method_style(m))
+                everything.append(y[ok])
+                evaluated.append(y[ok & (t >= t[0] + skip - 1e-9)])
+            ax.axvspan(t[0], t[0] + skip, color="#000000", alpha=0.06, linewidth=0)
+            log_axis(ax)
+            # The first frames are exact by construction (the world frame is the first
+            # camera frame): the lower limit comes from the evaluated frames only.
+            low, high = np.concatenate(evaluated), np.concatenate(everything)
+            if low.size:
+                ax.set_ylim(0.5 * low.min(), 1.5 * high.max())
+            ax.set_title(f"{title} error")
+            ax.set_ylabel(f"{title} error [{unit}]")
+        for ax in axes[1]:
+            ax.set_xlabel("time [s]")
+        handles, labels = axes[0, 0].get_legend_handles_labels()
+        fig.legend(handles, labels, loc="outside lower center", ncols=4)
+        config = results[0].config
+        fig.suptitle(
+            f"Error over time, mean of {len(results)} seeds (sigma {config.pixel_sigma:.3g} px, "
+            f"{config.fps:g} fps, {config.num_points} points); shaded: the first {skip:g} s, "
+            "left out of the statistics"
+        )
+        return save_figure(fig, path)
+
+
+def plot_error_distribution(
+    results: Sequence[SeedResult], methods: Sequence[str], path: Path
+) -> list[Path]:
+    """Four panels: box plots of the per-seed RMSE of each method (log y)."""
+    from hvo_graph.plotting import figure_style, log_axis, method_style, new_figure, save_figure
+
+    with figure_style():
+        fig, axes = new_figure(*DISTRIBUTION_FIGSIZE, nrows=2, ncols=2, sharex=True)
+        positions = np.arange(1, len(methods) + 1)
+        for ax, (q, title, unit) in zip(axes.flat, QUANTITIES, strict=True):
+            data = []
+            for m in methods:
+                v = metric_values(results, m, q)
+                data.append(v[np.isfinite(v)])
+            boxes = ax.boxplot(
+                data,
+                positions=positions,
+                widths=0.6,
+                patch_artist=True,
+                showfliers=True,
+                medianprops={"color": "#000000"},
+                flierprops={"markersize": 3},
+            )
+            for patch, m in zip(boxes["boxes"], methods, strict=True):
+                patch.set_facecolor(str(method_style(m)["color"]))
+                patch.set_alpha(0.7)
+            values = np.concatenate(data)
+            positive = values[values > 0]
+            if positive.size and positive.max() > 20.0 * positive.min():
+                log_axis(ax)  # methods an order of magnitude apart
+            ax.set_title(f"{title} RMSE per seed")
+            ax.set_ylabel(f"{title} RMSE [{unit}]")
+            ax.grid(axis="x", visible=False)
+        for ax in axes[1]:
+            ax.set_xticks(positions)
+            ax.set_xticklabels(
+                [str(method_style(m)["label"]) for m in methods], rotation=30, ha="right"
+            )
+        config = results[0].config
+        fig.suptitle(
+            f"Per-seed RMSE after the first {results[0].skip:g} s, {len(results)} seeds "
+            f"(sigma {config.pixel_sigma:.3g} px, {config.fps:g} fps); boxes: quartiles, "
+            "whiskers: 1.5 IQR"
+        )
+        return save_figure(fig, path)
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    """Run the comparison; returns the exit code (argparse exits 2 on bad options)."""
+    argv = list(sys.argv[1:] if argv is None else argv)
+    parser = build_parser()
+    args = parser.parse_args(argv)
+    if args.seed_list is not None:
+        args.seed_values = args.seed_list
+    else:
+        count = args.seeds or (QUICK_SEEDS if args.quick else DEFAULT_SEEDS)
+        args.seed_values = list(range(count))
+    if args.duration is None:
+        args.duration = QUICK_DURATION if args.quick else 10.0
+    out_dir = args.out_dir or (QUICK_OUT_DIR if args.quick else DEFAULT_OUT_DIR)
+    try:
+        configs = build_configs(args)
+        if args.skip >= args.duration:
+            raise InputError(
+                f"--skip: {args.skip:g} s leaves nothing of a {args.duration:g} s sequence"
+            )
+        results = run_seeds(
+            configs,
+            args.methods,
+            skip=args.skip,
+            keep_series=not args.no_figures,
+            workers=args.workers,
+            progress=not args.no_progress,
+        )
+    except InputError as exc:
+        parser.error(str(exc))
+    figures: list[str] = []
+    if not args.no_figures:
+        fig_dir = out_dir / "figures"
+        plot_error_over_time(
+            results, args.methods, fig_dir / "compare_error_over_time", skip=args.skip
+        )
+        plot_error_distribution(results, args.methods, fig_dir / "compare_error_distribution")
+        figures = ["figures/compare_error_over_time.png", "figures/compare_error_distribution.png"]
+    command = shlex.join(["python", "experiments/compare.py", *argv])
+    write_text_atomic(
+        out_dir / "results.md",
+        results_markdown(results, args.methods, command=command, skip=args.skip, figures=figures),
+    )
+    write_text_atomic(out_dir / "results.csv", results_csv(results, args.methods))
+    print(scenario_text(results[0].config, args.skip))
+    print(f"seeds {describe_seeds(args.seed_values)}; written to {out_dir}/results.md\n")
+    print(tables_markdown(results, args.methods), end="")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
