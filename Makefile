@@ -17,8 +17,12 @@ $(STAMP): pyproject.toml | $(BIN)/python
 	$(BIN)/python -m pip install --quiet -e ".[test,dev]"
 	touch $(STAMP)
 
+# The main job: the smoother against the paper's Kalman filter (and the raw
+# measurements, IPPE) on the paper's noisy scenario, 5 seeds: table + figures.
 demo: $(STAMP)
-	$(BIN)/python experiments/demo.py --out $(DEMO_OUT)
+	$(BIN)/python experiments/compare.py --quick --duration 10 --out-dir $(DEMO_OUT)
+	$(BIN)/python experiments/paper_figures.py --out $(DEMO_OUT)/figures
+	@echo "figures and tables: $(DEMO_OUT)/"
 
 test: $(STAMP)
 	$(BIN)/python -m pytest -q
