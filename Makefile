@@ -37,6 +37,7 @@ format: $(STAMP)
 
 figures: $(STAMP)
 	$(BIN)/python experiments/paper_figures.py --out docs/figures
+	$(BIN)/python experiments/factor_graph_figure.py --out docs/figures
 	$(BIN)/python experiments/compare.py
 	$(BIN)/python experiments/sweep.py
 	$(BIN)/python experiments/benchmark.py

@@ -40,6 +40,7 @@ def load_script(name: str):
 
 paper_figures = load_script("paper_figures")
 benchmark = load_script("benchmark")
+factor_graph_figure = load_script("factor_graph_figure")
 
 
 def png_size(path: Path) -> tuple[int, int]:
@@ -224,3 +225,18 @@ def test_simulated_lengths_are_exact():
     np.testing.assert_array_equal(
         benchmark.simulate_frames(200).observations[-1].uv, short.observations[-1].uv
     )
+
+
+# -- factor_graph_figure.py ---------------------------------------------------------------------
+
+
+def test_factor_graph_figure_draws_every_factor_kind(tmp_path, capsys):
+    assert factor_graph_figure.main(["--out", str(tmp_path)]) == 0
+    png, svg = tmp_path / "factor_graph.png", tmp_path / "factor_graph.svg"
+    assert png_size(png) == (1500, 960)  # 10 x 6.4 in at 150 dpi
+    text = svg.read_text()
+    ET.fromstring(text)
+    for label, _ in factor_graph_figure.FACTORS.values():
+        assert label.split(" (")[0].split(":")[0] in text
+    for name in ("X(0)", "X(4)", "V(0)", "V(4)"):
+        assert name in text
