@@ -32,6 +32,7 @@ from hvo_graph.geometry.discrete import (
     DEGENERACY_TOL,
     normalized_points,
     positive_distance,
+    select_solution,
     unit_normal,
 )
 from hvo_graph.geometry.rotation import skew
@@ -278,12 +279,7 @@ def select_continuous_solution(
     Raises:
         InputError: empty list or zero prior.
     """
-    if not solutions:
-        raise InputError("solutions: empty list, nothing to select")
-    p = as_vector(normal_prior, "normal_prior", 3)
-    if not np.linalg.norm(p) > 0:
-        raise InputError("normal_prior: expected a non-zero vector")
-    return max(solutions, key=lambda s: float(s.normal @ p))
+    return select_solution(solutions, normal_prior)  # the same rule as for H_d
 
 
 def velocity_design_matrix(m: np.ndarray, normal: np.ndarray) -> np.ndarray:

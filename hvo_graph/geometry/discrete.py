@@ -452,7 +452,8 @@ def select_solution(
     """The solution whose normal n* is closest in direction to ``normal_prior``.
 
     Args:
-        solutions: non-empty list of candidates.
+        solutions: non-empty list of candidates (anything with a ``normal``; the
+            continuous homography's solutions are selected the same way).
         normal_prior: (3,) non-zero vector (normalized here), e.g. the known n*
             or the previous frame's estimate.
     Raises:
