@@ -5,16 +5,14 @@ from __future__ import annotations
 
 import contextlib
 import csv
-import importlib.util
 import io
 import math
 import re
-import struct
-import sys
 from pathlib import Path
 
 import numpy as np
 import pytest
+from script_helpers import load_script, png_size
 
 from hvo_graph.errors import InputError
 from hvo_graph.evaluation import error_series, summarize
@@ -30,31 +28,12 @@ from hvo_graph.pipeline import estimate
 from hvo_graph.plotting import FIGURE_DPI, METHOD_STYLE
 from hvo_graph.simulation import paper_scenario, simulate
 
-ROOT = Path(__file__).resolve().parents[1]
 TINY = ["--seeds", "2", "--duration", "1.5", "--workers", "1", "--no-progress"]
 T_975_DF1 = 12.706  # textbook t_{0.975, 1}: the CI of a mean of two seeds
 
 
-def load_script(name: str):
-    spec = importlib.util.spec_from_file_location(
-        f"_exp_{name}", ROOT / "experiments" / f"{name}.py"
-    )
-    module = importlib.util.module_from_spec(spec)
-    sys.modules[spec.name] = module  # dataclasses look their module up there
-    spec.loader.exec_module(module)
-    return module
-
-
 compare = load_script("compare")
 sweep = load_script("sweep")
-
-
-def png_size(path: Path) -> tuple[int, int]:
-    """(width, height) from the PNG signature and IHDR chunk."""
-    data = path.read_bytes()
-    assert data[:8] == b"\x89PNG\r\n\x1a\n", f"{path} is not a PNG"
-    assert data[12:16] == b"IHDR"
-    return struct.unpack(">II", data[16:24])
 
 
 def assert_figure(base: Path, figsize: tuple[float, float]) -> None:

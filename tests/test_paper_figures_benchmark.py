@@ -13,42 +13,20 @@ from __future__ import annotations
 import importlib.metadata
 import importlib.util
 import re
-import struct
-import sys
 import xml.etree.ElementTree as ET
 from pathlib import Path
 
 import numpy as np
 import pytest
+from script_helpers import load_script, png_size
 
 from hvo_graph.errors import InputError
 from hvo_graph.geometry.rotation import euler_to_rotation
 from hvo_graph.simulation import paper_scenario, simulate
 
-ROOT = Path(__file__).resolve().parents[1]
-
-
-def load_script(name: str):
-    spec = importlib.util.spec_from_file_location(
-        f"_script_{name}", ROOT / "experiments" / f"{name}.py"
-    )
-    module = importlib.util.module_from_spec(spec)
-    sys.modules[spec.name] = module  # dataclasses look their module up there
-    spec.loader.exec_module(module)
-    return module
-
-
 paper_figures = load_script("paper_figures")
 benchmark = load_script("benchmark")
 factor_graph_figure = load_script("factor_graph_figure")
-
-
-def png_size(path: Path) -> tuple[int, int]:
-    """(width, height) from the PNG signature and IHDR chunk."""
-    data = path.read_bytes()
-    assert data[:8] == b"\x89PNG\r\n\x1a\n", f"{path} is not a PNG"
-    assert data[12:16] == b"IHDR"
-    return struct.unpack(">II", data[16:24])
 
 
 # -- paper_figures.py --------------------------------------------------------------------------
