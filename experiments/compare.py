@@ -32,6 +32,7 @@ from pathlib import Path
 
 import numpy as np
 
+from hvo_graph.arguments import add_monte_carlo_options, finite_float, int_at_least
 from hvo_graph.errors import InputError
 from hvo_graph.experiment import (
     METHOD_LABELS,
@@ -113,16 +114,6 @@ METHOD_NOTES: dict[str, str] = {
 }
 
 
-def _positive_int(text: str) -> int:
-    try:
-        value = int(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"expected an integer >= 1, got {text!r}") from None
-    if value < 1:
-        raise argparse.ArgumentTypeError(f"expected an integer >= 1, got {text!r}")
-    return value
-
-
 def _seed_list(text: str) -> list[int]:
     try:
         seeds = [int(s) for s in text.replace(",", " ").split()]
@@ -149,23 +140,6 @@ def _methods(text: str) -> list[str]:
     return methods
 
 
-def _nonnegative_float(text: str) -> float:
-    try:
-        value = float(text)
-    except ValueError:
-        value = float("nan")
-    if not value >= 0 or value == float("inf"):
-        raise argparse.ArgumentTypeError(f"expected a finite number >= 0, got {text!r}")
-    return value
-
-
-def _positive_float(text: str) -> float:
-    value = _nonnegative_float(text)
-    if value == 0:
-        raise argparse.ArgumentTypeError(f"expected a number > 0, got {text!r}")
-    return value
-
-
 def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(
         prog="compare.py",
@@ -173,44 +147,32 @@ def build_parser() -> argparse.ArgumentParser:
     )
     seeds = parser.add_mutually_exclusive_group()
     seeds.add_argument(
-        "--seeds", type=_positive_int, help=f"use seeds 0..N-1 (default {DEFAULT_SEEDS})"
+        "--seeds", type=int_at_least(1), help=f"use seeds 0..N-1 (default {DEFAULT_SEEDS})"
     )
     seeds.add_argument("--seed-list", type=_seed_list, help="explicit seeds, e.g. 3,5,8")
     parser.add_argument(
         "--noise-var",
-        type=_nonnegative_float,
+        type=finite_float(0.0, strict=False),
         default=PAPER_NOISE_VAR,
         help=f"pixel noise variance, px^2 (default {PAPER_NOISE_VAR}, the paper's noisy run)",
     )
-    parser.add_argument("--duration", type=_positive_float, help="seconds (default 10)")
-    parser.add_argument("--fps", type=_positive_float, default=30.0, help="frames per second")
-    parser.add_argument("--num-points", type=_positive_int, default=4, help="plane points (>= 4)")
+    parser.add_argument(
+        "--duration", type=finite_float(0.0, strict=True), help="seconds (default 10)"
+    )
+    parser.add_argument(
+        "--fps", type=finite_float(0.0, strict=True), default=30.0, help="frames per second"
+    )
+    parser.add_argument("--num-points", type=int_at_least(4), default=4, help="plane points (>= 4)")
     parser.add_argument(
         "--methods",
         type=_methods,
         default=list(METHOD_LABELS),
         help=f"comma-separated subset of {','.join(METHOD_LABELS)}",
     )
-    parser.add_argument(
-        "--skip",
-        type=_nonnegative_float,
-        default=1.0,
-        help="seconds at the start left out of the errors (default 1.0)",
-    )
-    parser.add_argument(
-        "--workers", type=_positive_int, help="worker processes (default: os.cpu_count())"
-    )
-    parser.add_argument(
-        "--out-dir",
-        type=Path,
-        help="output folder (default: the repository's docs/; out/compare-quick/ with --quick)",
-    )
-    parser.add_argument("--no-figures", action="store_true", help="skip the figures")
-    parser.add_argument("--no-progress", action="store_true", help="no progress bar on stderr")
-    parser.add_argument(
-        "--quick",
-        action="store_true",
-        help=f"short demo: {QUICK_SEEDS} seeds of {QUICK_DURATION:g} s (unless set explicitly)",
+    add_monte_carlo_options(
+        parser,
+        quick_help=f"short demo: {QUICK_SEEDS} seeds of {QUICK_DURATION:g} s unless given",
+        quick_out="out/compare-quick/",
     )
     return parser
 

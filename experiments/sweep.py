@@ -37,6 +37,7 @@ from pathlib import Path
 
 import numpy as np
 
+from hvo_graph.arguments import add_monte_carlo_options, finite_float, int_at_least
 from hvo_graph.errors import InputError
 from hvo_graph.experiment import (
     METHOD_LABELS,
@@ -108,33 +109,6 @@ SWEEPS: dict[str, Sweep] = {
 }
 
 
-def _positive_int(text: str) -> int:
-    try:
-        value = int(text)
-    except ValueError:
-        value = 0
-    if value < 1:
-        raise argparse.ArgumentTypeError(f"expected an integer >= 1, got {text!r}")
-    return value
-
-
-def _nonnegative_float(text: str) -> float:
-    try:
-        value = float(text)
-    except ValueError:
-        value = float("nan")
-    if not (math.isfinite(value) and value >= 0):
-        raise argparse.ArgumentTypeError(f"expected a finite number >= 0, got {text!r}")
-    return value
-
-
-def _positive_float(text: str) -> float:
-    value = _nonnegative_float(text)
-    if value == 0:
-        raise argparse.ArgumentTypeError(f"expected a number > 0, got {text!r}")
-    return value
-
-
 def _names(choices: Sequence[str], what: str):
     def parse(text: str) -> list[str]:
         names = [n for n in text.replace(",", " ").split() if n]
@@ -156,7 +130,7 @@ def build_parser() -> argparse.ArgumentParser:
         description="RMSE against pixel noise, frame rate and number of points.",
     )
     parser.add_argument(
-        "--seeds", type=_positive_int, help=f"seeds 0..N-1 per value (default {DEFAULT_SEEDS})"
+        "--seeds", type=int_at_least(1), help=f"seeds 0..N-1 per value (default {DEFAULT_SEEDS})"
     )
     parser.add_argument(
         "--only",
@@ -172,25 +146,14 @@ def build_parser() -> argparse.ArgumentParser:
         f"(default {','.join(DEFAULT_METHODS)})",
     )
     parser.add_argument(
-        "--duration", type=_positive_float, help=f"seconds (default {DEFAULT_DURATION:g})"
+        "--duration",
+        type=finite_float(0.0, strict=True),
+        help=f"seconds (default {DEFAULT_DURATION:g})",
     )
-    parser.add_argument(
-        "--skip", type=_nonnegative_float, default=1.0, help="seconds left out (default 1.0)"
-    )
-    parser.add_argument(
-        "--workers", type=_positive_int, help="worker processes (default: os.cpu_count())"
-    )
-    parser.add_argument(
-        "--out-dir",
-        type=Path,
-        help="output folder (default: the repository's docs/; out/sweep-quick/ with --quick)",
-    )
-    parser.add_argument("--no-figures", action="store_true", help="skip the figures")
-    parser.add_argument("--no-progress", action="store_true", help="no progress bar on stderr")
-    parser.add_argument(
-        "--quick",
-        action="store_true",
-        help=f"short run: {QUICK_SEEDS} seeds of {QUICK_DURATION:g} s (unless set explicitly)",
+    add_monte_carlo_options(
+        parser,
+        quick_help=f"short run: {QUICK_SEEDS} seeds of {QUICK_DURATION:g} s unless given",
+        quick_out="out/sweep-quick/",
     )
     return parser
 

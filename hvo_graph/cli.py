@@ -19,13 +19,13 @@ from __future__ import annotations
 
 import argparse
 import json
-import math
 import sys
 import time
-from collections.abc import Callable, Sequence
+from collections.abc import Sequence
 from pathlib import Path
 from typing import TYPE_CHECKING
 
+from hvo_graph.arguments import finite_float, int_at_least
 from hvo_graph.errors import InputError
 
 if TYPE_CHECKING:  # the CLI imports the heavy modules lazily, per subcommand
@@ -47,36 +47,6 @@ def _progress(message: str) -> None:
         print(f"{PROG}: {message}", file=sys.stderr, flush=True)
 
 
-def _int_at_least(minimum: int) -> Callable[[str], int]:
-    def parse(text: str) -> int:
-        try:
-            value = int(text)
-        except ValueError:
-            raise argparse.ArgumentTypeError(f"expected an integer, got {text!r}") from None
-        if value < minimum:
-            raise argparse.ArgumentTypeError(f"expected an integer >= {minimum}, got {value}")
-        return value
-
-    return parse
-
-
-def _float(minimum: float, *, strict: bool) -> Callable[[str], float]:
-    def parse(text: str) -> float:
-        try:
-            value = float(text)
-        except ValueError:
-            raise argparse.ArgumentTypeError(f"expected a number, got {text!r}") from None
-        ok = value > minimum if strict else value >= minimum
-        if not (ok and math.isfinite(value)):
-            op = ">" if strict else ">="
-            raise argparse.ArgumentTypeError(
-                f"expected a finite number {op} {minimum:g}, got {text}"
-            )
-        return value
-
-    return parse
-
-
 def build_parser() -> argparse.ArgumentParser:
     """The argument parser (subcommands simulate, estimate, evaluate)."""
     parser = argparse.ArgumentParser(
@@ -94,22 +64,22 @@ def build_parser() -> argparse.ArgumentParser:
     )
     sim.add_argument("--out", required=True, metavar="DIR", help="output folder (created)")
     sim.add_argument("--scenario", choices=("paper",), default="paper", help="scenario (paper)")
-    sim.add_argument("--seed", type=_int_at_least(0), default=0, help="noise seed (default 0)")
+    sim.add_argument("--seed", type=int_at_least(0), default=0, help="noise seed (default 0)")
     sim.add_argument(
         "--noise-var",
-        type=_float(0.0, strict=False),
+        type=finite_float(0.0, strict=False),
         default=None,
         metavar="PX2",
         help="pixel noise variance in px^2 (default 0.05; 0 for the noise-free run)",
     )
     sim.add_argument(
-        "--duration", type=_float(0.0, strict=True), default=None, metavar="S", help="seconds"
+        "--duration", type=finite_float(0.0, strict=True), default=None, metavar="S", help="seconds"
     )
     sim.add_argument(
-        "--fps", type=_float(0.0, strict=True), default=None, metavar="F", help="frame rate"
+        "--fps", type=finite_float(0.0, strict=True), default=None, metavar="F", help="frame rate"
     )
     sim.add_argument(
-        "--num-points", type=_int_at_least(4), default=None, metavar="N", help="plane points"
+        "--num-points", type=int_at_least(4), default=None, metavar="N", help="plane points"
     )
 
     est = sub.add_parser(
@@ -130,7 +100,7 @@ def build_parser() -> argparse.ArgumentParser:
     est.add_argument("--out", required=True, metavar="DIR", help="output folder (created)")
     # Options left out are not passed on, so the pipeline's own defaults apply.
     S = argparse.SUPPRESS
-    est.add_argument("--seed", type=_int_at_least(0), default=S, help="Kalman initial-state seed")
+    est.add_argument("--seed", type=int_at_least(0), default=S, help="Kalman initial-state seed")
     est.add_argument("--kalman-r", choices=KALMAN_R, default=S, help="Kalman R_k preset")
     est.add_argument(
         "--kalman-world-velocity",
@@ -146,7 +116,7 @@ def build_parser() -> argparse.ArgumentParser:
     )
     est.add_argument(
         "--lag",
-        type=_float(0.0, strict=True),
+        type=finite_float(0.0, strict=True),
         default=S,
         metavar="SECONDS",
         help="fixed-lag window",
@@ -154,14 +124,14 @@ def build_parser() -> argparse.ArgumentParser:
     est.add_argument("--robust", choices=ROBUST, default=S, help="robust loss of the smoother")
     est.add_argument(
         "--pixel-sigma",
-        type=_float(0.0, strict=True),
+        type=finite_float(0.0, strict=True),
         default=S,
         metavar="PX",
         help="pixel noise std (overrides the camera file's noise.pixel_sigma)",
     )
     est.add_argument(
         "--ransac-px",
-        type=_float(0.0, strict=True),
+        type=finite_float(0.0, strict=True),
         default=S,
         metavar="PX",
         help="reject tracks off the plane: RANSAC threshold on H_d in pixels "
@@ -170,13 +140,13 @@ def build_parser() -> argparse.ArgumentParser:
     images = est.add_argument_group("image input (--images)")
     images.add_argument(
         "--fps",
-        type=_float(0.0, strict=True),
+        type=finite_float(0.0, strict=True),
         default=None,
         metavar="F",
         help="frame rate of an image folder without times.txt (default 30) or of a video",
     )
     images.add_argument(
-        "--max-features", type=_int_at_least(4), default=None, metavar="N", help="default 200"
+        "--max-features", type=int_at_least(4), default=None, metavar="N", help="default 200"
     )
     images.add_argument(
         "--save-tracks", metavar="FILE", default=None, help="also write the tracks CSV here"
@@ -193,7 +163,7 @@ def build_parser() -> argparse.ArgumentParser:
     ev.add_argument("--json", action="store_true", help="print one JSON object instead of a table")
     ev.add_argument(
         "--skip",
-        type=_float(0.0, strict=False),
+        type=finite_float(0.0, strict=False),
         default=None,
         metavar="SECONDS",
         help="ignore frames in the first SECONDS after the ground truth's first timestamp",

@@ -1,0 +1,74 @@
+"""Command-line argument types and options shared by ``hvo-graph`` and experiments/.
+
+Each type raises ``argparse.ArgumentTypeError`` with what was expected, so
+argparse prints one line naming the option and exits with status 2.
+"""
+
+from __future__ import annotations
+
+import argparse
+import math
+from collections.abc import Callable
+from pathlib import Path
+
+
+def int_at_least(minimum: int) -> Callable[[str], int]:
+    """An argparse type: an integer >= ``minimum``."""
+
+    def parse(text: str) -> int:
+        try:
+            value = int(text)
+        except ValueError:
+            raise argparse.ArgumentTypeError(f"expected an integer, got {text!r}") from None
+        if value < minimum:
+            raise argparse.ArgumentTypeError(f"expected an integer >= {minimum}, got {value}")
+        return value
+
+    return parse
+
+
+def finite_float(minimum: float, *, strict: bool) -> Callable[[str], float]:
+    """An argparse type: a finite number > ``minimum`` (``strict``) or >= ``minimum``."""
+
+    def parse(text: str) -> float:
+        try:
+            value = float(text)
+        except ValueError:
+            raise argparse.ArgumentTypeError(f"expected a number, got {text!r}") from None
+        ok = value > minimum if strict else value >= minimum
+        if not (ok and math.isfinite(value)):
+            op = ">" if strict else ">="
+            raise argparse.ArgumentTypeError(
+                f"expected a finite number {op} {minimum:g}, got {text}"
+            )
+        return value
+
+    return parse
+
+
+def add_monte_carlo_options(
+    parser: argparse.ArgumentParser, *, quick_help: str, quick_out: str
+) -> None:
+    """The options every Monte Carlo script under experiments/ takes.
+
+    --skip, --workers, --out-dir, --no-figures, --no-progress and --quick.
+    """
+    parser.add_argument(
+        "--skip",
+        type=finite_float(0.0, strict=False),
+        default=1.0,
+        help="seconds at the start left out of the errors (default 1.0)",
+    )
+    parser.add_argument(
+        "--workers",
+        type=int_at_least(1),
+        help="worker processes (default: os.cpu_count())",
+    )
+    parser.add_argument(
+        "--out-dir",
+        type=Path,
+        help=f"output folder (default: the repository's docs/; {quick_out} with --quick)",
+    )
+    parser.add_argument("--no-figures", action="store_true", help="skip the figures")
+    parser.add_argument("--no-progress", action="store_true", help="no progress bar on stderr")
+    parser.add_argument("--quick", action="store_true", help=quick_help)
