@@ -1,1 +1,31 @@
-"""Readers and writers for the contract's files (YAML, tracks CSV, TUM, velocity CSV)."""
+"""Readers and writers for the contract's files (YAML, tracks CSV, TUM, velocity CSV).
+
+- :mod:`~hvo_graph.io.config`: the camera and scene YAML;
+- :mod:`~hvo_graph.io.tracks`: feature tracks, ``frame,t,id,u,v``;
+- :mod:`~hvo_graph.io.trajectory`: TUM poses, ``velocity.csv``, ``covariance.csv``
+  and the estimate / ground-truth folders.
+
+The readers and writers are re-exported here and imported on first use.
+"""
+
+from hvo_graph import _lazy_exports
+
+__all__, __getattr__, __dir__ = _lazy_exports(
+    __name__,
+    {
+        "hvo_graph.io.config": ("SceneConfig", "load_scene", "save_scene"),
+        "hvo_graph.io.tracks": ("read_tracks", "write_tracks"),
+        "hvo_graph.io.trajectory": (
+            "read_tum",
+            "write_tum",
+            "read_velocity",
+            "write_velocity",
+            "read_covariance",
+            "write_covariance",
+            "read_estimate_dir",
+            "write_estimate_dir",
+            "read_groundtruth_dir",
+            "write_groundtruth_dir",
+        ),
+    },
+)
