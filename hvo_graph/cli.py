@@ -1,4 +1,4 @@
-"""The ``hvo-graph`` command: ``simulate``, ``estimate`` and ``evaluate`` (docs/CONTRACT).
+"""The ``hvo-graph`` command: ``simulate``, ``estimate`` and ``evaluate`` (docs/conventions.md).
 
 A thin layer over the library: it parses arguments, reads the contract's files,
 calls :func:`hvo_graph.simulation.simulate`, :func:`hvo_graph.pipeline.estimate`

@@ -47,6 +47,7 @@ import numpy as np
 from hvo_graph.errors import InputError
 from hvo_graph.estimators.base import Estimator
 from hvo_graph.evaluation import ErrorSeries, ErrorSummary, error_series, summarize
+from hvo_graph.io._common import atomic_write_text
 from hvo_graph.simulation import ScenarioConfig, simulate
 from hvo_graph.stats import MeanCI, mean_ci
 from hvo_graph.types import Trajectory
@@ -582,12 +583,10 @@ def markdown_table(
 
 
 def write_text_atomic(path: str | Path, text: str) -> Path:
-    """Write ``text`` to ``path`` through a temporary file and a rename (no half-written file)."""
+    """Write ``text`` to ``path`` atomically (no half-written file), creating its folder."""
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
-    tmp = path.with_name(f".{path.name}.{os.getpid()}.tmp")
-    tmp.write_text(text, encoding="utf-8")
-    os.replace(tmp, path)
+    atomic_write_text(path, text)
     return path
 
 

@@ -107,8 +107,24 @@ class FrontEndConfig:
     def __post_init__(self) -> None:
         if not (np.isfinite(self.pixel_sigma) and self.pixel_sigma >= 0):
             raise InputError(f"pixel_sigma: expected a number >= 0, got {self.pixel_sigma}")
-        if self.min_points < 4:
-            raise InputError(f"min_points: expected >= 4, got {self.min_points}")
+
+        def integer(name: str, minimum: int) -> None:
+            value = getattr(self, name)
+            if (
+                isinstance(value, bool)
+                or not isinstance(value, int | np.integer)
+                or value < minimum
+            ):
+                raise InputError(f"{name}: expected an integer >= {minimum}, got {value!r}")
+
+        integer("min_points", 4)
+        integer("refine_iterations", 0)
+        if self.keyframe_min_points is not None:
+            integer("keyframe_min_points", self.min_points)
+        if not (np.isfinite(self.min_parallax) and self.min_parallax >= 0):
+            raise InputError(
+                f"min_parallax: expected a finite number >= 0, got {self.min_parallax}"
+            )
         if self.pose_solver not in POSE_SOLVERS:
             raise InputError(
                 f"pose_solver: expected one of {', '.join(POSE_SOLVERS)}, got {self.pose_solver!r}"

@@ -33,9 +33,11 @@ tracks into pose (H_d) and velocity (H_c) measurements::
     tracks = tracks_from_images("images/", camera)
     frames = measure_sequence(tracks, camera, plane)
 
-Poses come from H_d between each frame and the first, so a frame needs at
-least 4 points still tracked since frame 0; replenished points only serve
-the velocity (H_c, consecutive frames).
+Poses come from H_d between each frame and its reference: the first frame,
+or a later keyframe once the first frame's points have left the view
+(``FrontEndConfig.keyframe_min_points``); replenished points become usable
+for poses as soon as a keyframe that sees them is taken, and for the velocity
+(H_c, consecutive frames) at once.
 """
 
 from __future__ import annotations

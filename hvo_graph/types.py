@@ -102,6 +102,13 @@ class VelocityMeasurement:
 class FrameMeasurement:
     """Everything the front end measured at frame ``index``.
 
+    Attributes:
+        index: frame number.
+        t: frame time, seconds.
+        pose: pose from H_d (against frame 0 or a keyframe), or None.
+        velocity: mid-interval twist from H_c (frames index-1 and index), or None.
+        num_points: points observed in the frame.
+
     ``pose`` or ``velocity`` is None when the frame had too few usable points;
     estimators then predict through the frame.
     """
@@ -134,17 +141,20 @@ class Trajectory:
     def __len__(self) -> int:
         return len(self.t)
 
+    def _twists(self) -> np.ndarray:
+        if self.twists is None:
+            raise InputError("trajectory: has no velocities (twists is None)")
+        return self.twists
+
     @property
     def angular_velocity(self) -> np.ndarray:
         """(K, 3) body angular velocity w."""
-        assert self.twists is not None
-        return self.twists[:, :3]
+        return self._twists()[:, :3]
 
     @property
     def linear_velocity(self) -> np.ndarray:
         """(K, 3) body linear velocity v."""
-        assert self.twists is not None
-        return self.twists[:, 3:]
+        return self._twists()[:, 3:]
 
 
 @dataclass(frozen=True)

@@ -232,6 +232,14 @@ def test_bad_configuration_is_reported():
         FrontEndConfig(pixel_sigma=-1.0)
     with pytest.raises(InputError, match="pose_solver: expected one of homography, ippe"):
         FrontEndConfig(pose_solver="pnp")
+    with pytest.raises(InputError, match="refine_iterations: expected an integer >= 0, got -1"):
+        FrontEndConfig(refine_iterations=-1)
+    with pytest.raises(InputError, match=r"min_points: expected an integer >= 4, got 4\.5"):
+        FrontEndConfig(min_points=4.5)
+    with pytest.raises(InputError, match="keyframe_min_points: expected an integer >= 4, got -3"):
+        FrontEndConfig(keyframe_min_points=-3)
+    with pytest.raises(InputError, match="min_parallax: expected a finite number >= 0, got nan"):
+        FrontEndConfig(min_parallax=float("nan"))
     front = MeasurementFrontEnd(CAMERA, Plane(DISTANCE, NORMAL))
     obs = FrameObservations(0, 0.0, np.array([1, 1]), np.zeros((2, 2)))
     with pytest.raises(InputError, match="frame 0: a point id appears twice"):

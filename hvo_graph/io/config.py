@@ -1,4 +1,4 @@
-"""The camera-and-scene YAML file of the contract (docs/CONTRACT, "Input: camera and scene").
+"""The camera-and-scene YAML file of the contract (format in docs/conventions.md, "Files").
 
 .. code-block:: yaml
 
