@@ -175,6 +175,10 @@ def test_bad_inputs_exit_2_with_one_line(tmp_path):
         ),
         f"{bad_yaml}:3: unknown key 'camera.fz'",
     )
+    assert_one_line_error(
+        run("estimate", "--camera", tracks, "--tracks", tracks, "--out", str(tmp_path / "o")),
+        f"{tracks}:1: expected a YAML file of a mapping of keys to values",
+    )
     bad_tracks = tmp_path / "bad.csv"
     lines = (sim / "tracks.csv").read_text().splitlines()
     lines[5] = lines[5].replace(",", ";")

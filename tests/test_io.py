@@ -158,7 +158,7 @@ def test_yaml_missing_section_and_empty_file(tmp_path):
         load_scene(write(tmp_path / "c.yaml", text))
     with pytest.raises(InputError, match=r"e\.yaml:1: expected a mapping"):
         load_scene(write(tmp_path / "e.yaml", "# nothing\n"))
-    with pytest.raises(InputError, match=r"l\.yaml:1: : expected a mapping"):
+    with pytest.raises(InputError, match=r"l\.yaml:1: expected a YAML file of a mapping"):
         load_scene(write(tmp_path / "l.yaml", "- 1\n- 2\n"))
     with pytest.raises(FileNotFoundError):
         load_scene(tmp_path / "missing.yaml")

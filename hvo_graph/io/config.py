@@ -85,7 +85,8 @@ class _Reader:
     def mapping(self, node: yaml.Node, key: str) -> dict[str, tuple[yaml.Node, yaml.Node]]:
         """{name: (key node, value node)} of a mapping; rejects duplicates and non-string keys."""
         if not isinstance(node, yaml.MappingNode):
-            raise self.error(node, f"{key}: expected a mapping of keys to values")
+            what = f"{key}: expected" if key else "expected a YAML file of"
+            raise self.error(node, f"{what} a mapping of keys to values")
         out: dict[str, tuple[yaml.Node, yaml.Node]] = {}
         for knode, vnode in node.value:
             name = self._constructor.construct_object(knode, deep=True)
