@@ -32,7 +32,7 @@ from pathlib import Path
 
 import numpy as np
 
-from hvo_graph.arguments import add_monte_carlo_options, finite_float, int_at_least
+from hvo_graph.arguments import add_monte_carlo_options, finite_float, int_at_least, names
 from hvo_graph.errors import InputError
 from hvo_graph.experiment import (
     METHOD_LABELS,
@@ -128,18 +128,6 @@ def _seed_list(text: str) -> list[int]:
     return seeds
 
 
-def _methods(text: str) -> list[str]:
-    methods = [m for m in text.replace(",", " ").split() if m]
-    for m in methods:
-        if m not in METHOD_LABELS:
-            raise argparse.ArgumentTypeError(
-                f"unknown method {m!r}; expected some of {', '.join(METHOD_LABELS)}"
-            )
-    if not methods or len(set(methods)) != len(methods):
-        raise argparse.ArgumentTypeError(f"expected distinct methods, got {text!r}")
-    return methods
-
-
 def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(
         prog="compare.py",
@@ -165,7 +153,7 @@ def build_parser() -> argparse.ArgumentParser:
     parser.add_argument("--num-points", type=int_at_least(4), default=4, help="plane points (>= 4)")
     parser.add_argument(
         "--methods",
-        type=_methods,
+        type=names(METHOD_LABELS, "method"),
         default=list(METHOD_LABELS),
         help=f"comma-separated subset of {','.join(METHOD_LABELS)}",
     )

@@ -37,7 +37,7 @@ from pathlib import Path
 
 import numpy as np
 
-from hvo_graph.arguments import add_monte_carlo_options, finite_float, int_at_least
+from hvo_graph.arguments import add_monte_carlo_options, finite_float, int_at_least, names
 from hvo_graph.errors import InputError
 from hvo_graph.experiment import (
     METHOD_LABELS,
@@ -109,21 +109,6 @@ SWEEPS: dict[str, Sweep] = {
 }
 
 
-def _names(choices: Sequence[str], what: str):
-    def parse(text: str) -> list[str]:
-        names = [n for n in text.replace(",", " ").split() if n]
-        for n in names:
-            if n not in choices:
-                raise argparse.ArgumentTypeError(
-                    f"unknown {what} {n!r}; expected some of {', '.join(choices)}"
-                )
-        if not names or len(set(names)) != len(names):
-            raise argparse.ArgumentTypeError(f"expected distinct {what}s, got {text!r}")
-        return names
-
-    return parse
-
-
 def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(
         prog="sweep.py",
@@ -134,13 +119,13 @@ def build_parser() -> argparse.ArgumentParser:
     )
     parser.add_argument(
         "--only",
-        type=_names(tuple(SWEEPS), "sweep"),
+        type=names(tuple(SWEEPS), "sweep"),
         default=list(SWEEPS),
         help=f"comma-separated subset of {','.join(SWEEPS)}",
     )
     parser.add_argument(
         "--methods",
-        type=_names(METHOD_LABELS, "method"),
+        type=names(METHOD_LABELS, "method"),
         default=list(DEFAULT_METHODS),
         help=f"comma-separated subset of {','.join(METHOD_LABELS)} "
         f"(default {','.join(DEFAULT_METHODS)})",

@@ -8,7 +8,7 @@ from __future__ import annotations
 
 import argparse
 import math
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from pathlib import Path
 
 
@@ -42,6 +42,23 @@ def finite_float(minimum: float, *, strict: bool) -> Callable[[str], float]:
                 f"expected a finite number {op} {minimum:g}, got {text}"
             )
         return value
+
+    return parse
+
+
+def names(choices: Sequence[str], what: str) -> Callable[[str], list[str]]:
+    """An argparse type: a comma- or space-separated list of distinct ``choices``."""
+
+    def parse(text: str) -> list[str]:
+        picked = [n for n in text.replace(",", " ").split() if n]
+        for n in picked:
+            if n not in choices:
+                raise argparse.ArgumentTypeError(
+                    f"unknown {what} {n!r}; expected some of {', '.join(choices)}"
+                )
+        if not picked or len(set(picked)) != len(picked):
+            raise argparse.ArgumentTypeError(f"expected distinct {what}s, got {text!r}")
+        return picked
 
     return parse
 
