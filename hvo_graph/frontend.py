@@ -213,6 +213,48 @@ def _pose_normal_equations(
     return np.sum(JtW @ J, axis=0), np.einsum("nij,nj->i", JtW, residual)
 
 
+def _plane_jacobian(
+    R: np.ndarray,
+    T: np.ndarray,
+    m_ref: np.ndarray,
+    m_cur: np.ndarray,
+    plane: Plane,
+    sigma: float,
+    info: np.ndarray,
+) -> np.ndarray:
+    """(6, 6) d xi_rc / d xi_wr of the refined keyframe-relative pose (implicit function theorem).
+
+    The plane in the keyframe is n_r = R_wr^T n*, d_r = d* - n*^T p_wr; a right perturbation
+    T_wr Exp([phi; rho]) moves it by dn_r = n_r^ phi, dd_r = -n_r^T rho. The transfer
+    residuals r_i = m_i - pi(R X*_i + T), X*_i = d_r m*_i / (n_r^T m*_i), then move by
+    (dr/dpi) dpi, and the Gauss-Newton optimum by info^-1 J^T W (dr/dpi) dpi.
+    """
+    n, d = plane.normal, plane.distance
+    depth = m_ref @ n
+    X_star = d * m_ref / depth[:, None]
+    X = X_star @ R.T + T
+    P = _projection_jacobian(X)
+    dX = np.concatenate(
+        (np.stack([skew(x) for x in X]), np.broadcast_to(-np.eye(3), (len(X), 3, 3))), axis=2
+    )
+    J = P @ dX
+    dXstar = d * (
+        np.eye(3)[None] / depth[:, None, None]
+        - np.einsum("ni,j->nij", m_ref, n) / depth[:, None, None] ** 2
+    )
+    A = P @ R @ dXstar[:, :, :2]
+    W = np.linalg.inv(sigma**2 * (np.eye(2)[None] + A @ np.transpose(A, (0, 2, 1))))
+    # dX*/dn and dX*/dd at fixed m*, then through (phi, rho) of T_wr.
+    dXs_dn = -d * np.einsum("ni,nj->nij", m_ref, m_ref) / depth[:, None, None] ** 2
+    dXs_dd = m_ref / depth[:, None]
+    dXs_dxi = np.concatenate(
+        (dXs_dn @ skew(n), -np.einsum("ni,j->nij", dXs_dd, n)), axis=2
+    )  # (N, 3, 6)
+    dr_dxi = -(P @ R @ dXs_dxi)  # (N, 2, 6)
+    rhs = np.sum(np.transpose(J, (0, 2, 1)) @ W @ dr_dxi, axis=0)
+    return np.linalg.solve(info, rhs)
+
+
 def _retract_motion(
     R: np.ndarray, T: np.ndarray, delta: np.ndarray
 ) -> tuple[np.ndarray, np.ndarray]:
@@ -260,6 +302,7 @@ class MeasurementFrontEnd:
         ids, m = _normalized_by_id(self.camera, obs)
         if self._reference is None:
             self._reference = _Frame(obs.index, obs.t, ids, m, np.eye(3), np.zeros(3))
+            self._world_index = obs.index
         R, T, pose = self._measure_pose(ids, m)
         frame = _Frame(obs.index, obs.t, ids, m, R, T)
         velocity = self._measure_velocity(frame) if self._previous is not None else None
@@ -308,7 +351,20 @@ class MeasurementFrontEnd:
             R, T = _retract_motion(R, T, delta)
         R_rc, p_rc = camera_pose_from_motion(R, T)
         covariance = np.linalg.inv(info)
-        pose = PoseMeasurement(R_rc, p_rc, 0.5 * (covariance + covariance.T), reference=ref.index)
+        keyframe: dict[str, np.ndarray] = {}
+        if ref.index != self._world_index:
+            # The plane in the keyframe comes from the keyframe's *measured* pose: say which
+            # pose, and how T_rc moves with it, so an estimator can re-place the plane at its
+            # own keyframe estimate.
+            R_wr, p_wr = camera_pose_from_motion(ref.R, ref.T)
+            keyframe = {
+                "reference_rotation": R_wr,
+                "reference_position": p_wr,
+                "plane_jacobian": _plane_jacobian(R, T, m_ref, m_cur, plane, self._sigma, info),
+            }
+        pose = PoseMeasurement(
+            R_rc, p_rc, 0.5 * (covariance + covariance.T), reference=ref.index, **keyframe
+        )
         # Motion world -> current: X = R (R_ref X_w + T_ref) + T.
         return R @ ref.R, R @ ref.T + T, pose
 

@@ -70,12 +70,22 @@ class PoseMeasurement:
         position: (3,) p_rc, camera centre in the reference frame (metres).
         covariance: (6, 6) in Pose3 tangent order [rot; trans], right perturbation.
         reference: frame index of the reference (keyframe); 0 is the world frame W.
+        reference_rotation, reference_position: the keyframe pose T_wr (R_wr (3, 3),
+            p_wr (3,)) the front end assumed to place the plane in the keyframe's frame
+            (n_r = R_wr^T n*, d_r = d* - n*^T p_wr); None for reference 0.
+        plane_jacobian: (6, 6) d xi_rc / d xi_wr: how the measured T_rc (right
+            perturbation xi_rc) moves when the assumed T_wr is right-perturbed by
+            xi_wr (through the plane only). An estimator whose keyframe estimate is
+            T_wr_hat uses T_rc Exp(J Log(T_wr^-1 T_wr_hat)); None for reference 0.
     """
 
     rotation: np.ndarray
     position: np.ndarray
     covariance: np.ndarray
     reference: int = 0
+    reference_rotation: np.ndarray | None = None
+    reference_position: np.ndarray | None = None
+    plane_jacobian: np.ndarray | None = None
 
 
 @dataclass(frozen=True)

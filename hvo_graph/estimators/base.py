@@ -66,12 +66,21 @@ class Estimator(ABC):
                 f"pose measurement refers to frame {pose.reference}, which was not estimated before"
             )
         R_wr, p_wr = keyframe.rotation, keyframe.position
-        return PoseMeasurement(
-            R_wr @ pose.rotation,
-            R_wr @ np.asarray(pose.position) + p_wr,
-            pose.covariance,
-            reference=0,
-        )
+        R_rc, p_rc = pose.rotation, np.asarray(pose.position)
+        if pose.plane_jacobian is not None and pose.reference_rotation is not None:
+            # The front end placed the plane with its own keyframe pose; re-place it at ours.
+            import gtsam
+
+            from hvo_graph.estimators.factors import replace_keyframe_plane
+
+            moved = replace_keyframe_plane(
+                gtsam.Pose3(gtsam.Rot3(R_rc), p_rc),
+                gtsam.Pose3(gtsam.Rot3(pose.reference_rotation), pose.reference_position),
+                pose.plane_jacobian,
+                gtsam.Pose3(gtsam.Rot3(R_wr), p_wr),
+            )
+            R_rc, p_rc = moved.rotation().matrix(), np.asarray(moved.translation())
+        return PoseMeasurement(R_wr @ R_rc, R_wr @ p_rc + p_wr, pose.covariance, reference=0)
 
     def online_trajectory(self) -> Trajectory:
         """The online estimate of every frame so far (each as it was right after its update)."""

@@ -274,3 +274,87 @@ def interval_weights(
     acc[acc < tolerance] = 0.0
     acc /= acc.sum()
     return [(int(i), float(acc[i])) for i in np.flatnonzero(acc)]
+
+
+def replace_keyframe_plane(
+    measured: gtsam.Pose3,
+    assumed_keyframe: gtsam.Pose3,
+    plane_jacobian: np.ndarray,
+    keyframe: gtsam.Pose3,
+) -> gtsam.Pose3:
+    """A keyframe-relative pose Z = T_rc re-measured with the plane placed at ``keyframe``.
+
+    The front end placed the plane in the keyframe with its own keyframe pose A;
+    at a keyframe estimate X_r the measurement becomes, to first order,
+    Z(X_r) = Z Exp(J Log(A^-1 X_r)) (J: ``PoseMeasurement.plane_jacobian``).
+    """
+    xi = gtsam.Pose3.Logmap(assumed_keyframe.between(keyframe))
+    return measured.compose(gtsam.Pose3.Expmap(np.asarray(plane_jacobian) @ xi))
+
+
+def keyframe_between_residual(
+    keyframe: gtsam.Pose3,
+    pose: gtsam.Pose3,
+    measured: gtsam.Pose3,
+    assumed_keyframe: gtsam.Pose3,
+    plane_jacobian: np.ndarray,
+    jacobians: bool = False,
+) -> np.ndarray | tuple[np.ndarray, list[np.ndarray]]:
+    """Between residual of a keyframe-relative H_d pose whose plane moves with the keyframe.
+
+    The front end measured Z = T_rc with the plane placed by an assumed keyframe pose A;
+    at the keyframe estimate X_r the plane moves, and so does the measurement:
+    Z(X_r) = Z Exp(J xi), xi = Log(A^-1 X_r). The residual is
+
+        e = Log(Z(X_r)^-1 X_r^-1 X_k),
+        de/dX_k = H_E,   de/dX_r = -H_E (Ad(B^-1) + Ad(E^-1) J_r(J xi) J H_xi),
+
+    with B = X_r^-1 X_k, E = Z(X_r)^-1 B, H_E = J_r^-1(e), H_xi = J_r^-1(xi).
+    """
+    d_xi = np.empty((6, 6), order="F")
+    xi = gtsam.Pose3.Logmap(assumed_keyframe.between(keyframe), d_xi)
+    eta = plane_jacobian @ xi
+    corrected = measured.compose(gtsam.Pose3.Expmap(eta))
+    relative = keyframe.between(pose)
+    error_pose = corrected.between(relative)
+    d_e = np.empty((6, 6), order="F")
+    e = gtsam.Pose3.Logmap(error_pose, d_e)
+    if not jacobians:
+        return e
+    d_pose = d_e
+    d_keyframe = -d_e @ (
+        relative.inverse().AdjointMap()
+        + error_pose.inverse().AdjointMap()
+        @ gtsam.Pose3.ExpmapDerivative(eta)
+        @ plane_jacobian
+        @ d_xi
+    )
+    return e, [d_keyframe, d_pose]
+
+
+def keyframe_between_factor(
+    keyframe_key: int,
+    pose_key: int,
+    measured: gtsam.Pose3,
+    assumed_keyframe: gtsam.Pose3,
+    plane_jacobian: np.ndarray,
+    noise: gtsam.noiseModel.Base,
+) -> gtsam.CustomFactor:
+    """:func:`keyframe_between_residual` as a factor on (X_r, X_k)."""
+    J = np.array(plane_jacobian, dtype=float)
+
+    def error(_: gtsam.CustomFactor, values: gtsam.Values, H: list | None) -> np.ndarray:
+        out = keyframe_between_residual(
+            values.atPose3(keyframe_key),
+            values.atPose3(pose_key),
+            measured,
+            assumed_keyframe,
+            J,
+            jacobians=H is not None,
+        )
+        if H is None:
+            return out
+        e, (H[0], H[1]) = out
+        return e
+
+    return gtsam.CustomFactor(noise, [keyframe_key, pose_key], error)

@@ -56,7 +56,13 @@ from gtsam.symbol_shorthand import V, X
 
 from hvo_graph.errors import InputError
 from hvo_graph.estimators.base import Estimator
-from hvo_graph.estimators.factors import _mean_velocity_factor, interval_weights, motion_factor
+from hvo_graph.estimators.factors import (
+    _mean_velocity_factor,
+    interval_weights,
+    keyframe_between_factor,
+    motion_factor,
+    replace_keyframe_plane,
+)
 from hvo_graph.types import (
     FrameMeasurement,
     PoseMeasurement,
@@ -182,6 +188,28 @@ def _checked_velocity(velocity: VelocityMeasurement, k: int) -> tuple[np.ndarray
     if not (math.isfinite(velocity.dt) and velocity.dt >= 0):
         raise InputError(f"{name}.dt: expected a finite interval >= 0, got {velocity.dt}")
     return z, cov
+
+
+def _keyframe_model(pose: PoseMeasurement, k: int) -> tuple[gtsam.Pose3, np.ndarray] | None:
+    """(assumed keyframe pose A, plane Jacobian J) of a keyframe-relative pose, or None."""
+    fields = (pose.reference_rotation, pose.reference_position, pose.plane_jacobian)
+    if all(f is None for f in fields):
+        return None
+    name = f"frame {k}: pose"
+    if any(f is None for f in fields):
+        raise InputError(
+            f"{name}: reference_rotation, reference_position and plane_jacobian go together"
+        )
+    R = np.asarray(pose.reference_rotation, dtype=float)
+    p = np.asarray(pose.reference_position, dtype=float)
+    J = np.asarray(pose.plane_jacobian, dtype=float)
+    if R.shape != (3, 3) or not np.all(np.isfinite(R)) or np.abs(R.T @ R - np.eye(3)).max() > 1e-6:
+        raise InputError(f"{name}.reference_rotation: expected a (3, 3) rotation matrix")
+    if p.shape != (3,) or not np.all(np.isfinite(p)):
+        raise InputError(f"{name}.reference_position: expected a finite (3,) vector")
+    if J.shape != (6, 6) or not np.all(np.isfinite(J)):
+        raise InputError(f"{name}.plane_jacobian: expected a finite (6, 6) matrix")
+    return gtsam.Pose3(gtsam.Rot3(R), p), J
 
 
 def levenberg_marquardt(
@@ -511,8 +539,20 @@ class FactorGraphSmoother(Estimator):
                 graph.add(gtsam.PriorFactorPose3(X(k), measured, noise))
                 pose_guess = measured
             else:
-                pose_guess = self._current_pose(ref).compose(measured)
-                if self._in_graph(ref):
+                keyframe_model = _keyframe_model(frame.pose, k)
+                measured_here = (
+                    measured
+                    if keyframe_model is None
+                    else replace_keyframe_plane(measured, *keyframe_model, self._current_pose(ref))
+                )
+                pose_guess = self._current_pose(ref).compose(measured_here)
+                if self._in_graph(ref) and keyframe_model is not None:
+                    graph.add(
+                        keyframe_between_factor(
+                            X(ref), X(k), measured, keyframe_model[0], keyframe_model[1], noise
+                        )
+                    )
+                elif self._in_graph(ref):
                     graph.add(gtsam.BetweenFactorPose3(X(ref), X(k), measured, noise))
                 else:
                     # fixed-lag, keyframe already out of the window: its frozen estimate
