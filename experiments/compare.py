@@ -23,11 +23,9 @@ Usage::
 from __future__ import annotations
 
 import argparse
-import platform
 import shlex
 import sys
 from collections.abc import Sequence
-from importlib.metadata import PackageNotFoundError, version
 from pathlib import Path
 
 import numpy as np
@@ -49,6 +47,7 @@ from hvo_graph.experiment import (
     metric_values,
     ratio_statistics,
     run_seeds,
+    software_versions,
     summary_columns,
     summary_row,
     write_text_atomic,
@@ -273,16 +272,6 @@ def tables_markdown(results: Sequence[SeedResult], methods: Sequence[str]) -> st
     return "\n".join(parts) + "\n"
 
 
-def _versions() -> str:
-    found = []
-    for package in ("numpy", "gtsam", "opencv-python-headless", "matplotlib"):
-        try:
-            found.append(f"{package} {version(package)}")
-        except PackageNotFoundError:
-            continue
-    return f"Python {platform.python_version()}, " + ", ".join(found)
-
-
 def results_markdown(
     results: Sequence[SeedResult],
     methods: Sequence[str],
@@ -304,7 +293,7 @@ def results_markdown(
         f"- Scenario: {scenario_text(config, skip)}.",
         f"- Seeds: {describe_seeds(seeds)} ({len(seeds)} seeds); each seed draws the pixel noise "
         "and the Kalman filters' random initial state. Per-seed numbers: `results.csv`.",
-        f"- Software: {_versions()}.",
+        f"- Software: {software_versions()}.",
         "- Errors: position ||p - p_gt|| (m), orientation angle of R_gt^T R (deg), body linear "
         "velocity ||v - v_gt|| (m/s), body angular velocity ||w - w_gt|| (rad/s); RMSE and max "
         "over the frames of each seed, then the mean over seeds with a Student-t 95 % "

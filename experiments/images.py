@@ -43,13 +43,11 @@ from __future__ import annotations
 import argparse
 import math
 import os
-import platform
 import shlex
 import sys
 import time
 from collections.abc import Iterator, Sequence
 from dataclasses import dataclass, field
-from importlib.metadata import PackageNotFoundError, version
 from pathlib import Path
 
 import gtsam
@@ -67,6 +65,7 @@ from hvo_graph.experiment import (
     format_value,
     make_method,
     markdown_table,
+    software_versions,
     write_text_atomic,
 )
 from hvo_graph.frontend import FrontEndConfig, measure_sequence
@@ -566,16 +565,6 @@ def seed_table(results: Sequence[ImageSeedResult]) -> str:
     return markdown_table(header, rows, align="lllrrrrr")
 
 
-def _versions() -> str:
-    found = []
-    for package in ("numpy", "gtsam", "opencv-python-headless", "matplotlib"):
-        try:
-            found.append(f"{package} {version(package)}")
-        except PackageNotFoundError:
-            continue
-    return f"Python {platform.python_version()}, " + ", ".join(found)
-
-
 def scenario_text(config: ImageRunConfig) -> str:
     """The run's settings in one paragraph (Markdown)."""
     c, motion = config.camera, config.motion()
@@ -621,7 +610,7 @@ def images_markdown(
         "the plane and sees it over the whole image in every frame.",
         f"- Seeds: {describe_seeds(seeds)} ({seeds_text}); each seed draws the texture, the "
         "image noise and the Kalman filters' random initial state.",
-        f"- Software: {_versions()}.",
+        f"- Software: {software_versions()}.",
         "- Errors against the rendering's ground truth (poses integrated from the generating "
         "twist, and that twist): position ||p - p_gt|| (m), orientation angle of R_gt^T R "
         "(deg), body linear velocity ||v - v_gt|| (m/s), body angular velocity "

@@ -33,6 +33,7 @@ import io
 import math
 import multiprocessing
 import os
+import platform
 import sys
 import time
 from collections.abc import Callable, Iterable, Iterator, Mapping, Sequence
@@ -580,6 +581,19 @@ def markdown_table(
         for w, a in zip(widths, align, strict=True)
     )
     return "\n".join([line(table[0]), f"|{rule}|", *(line(r) for r in table[1:])])
+
+
+def software_versions() -> str:
+    """'Python X, numpy X, gtsam X, opencv-python-headless X, matplotlib X' (installed ones)."""
+    from importlib.metadata import PackageNotFoundError, version
+
+    found = []
+    for package in ("numpy", "gtsam", "opencv-python-headless", "matplotlib"):
+        try:
+            found.append(f"{package} {version(package)}")
+        except PackageNotFoundError:
+            continue
+    return f"Python {platform.python_version()}, " + ", ".join(found)
 
 
 def write_text_atomic(path: str | Path, text: str) -> Path:
