@@ -173,25 +173,31 @@ def _projection_jacobian(X: np.ndarray) -> np.ndarray:
     return J
 
 
-def _pose_normal_equations(
+@dataclass(frozen=True)
+class _TransferLinearization:
+    """The transfer residuals of the plane points and their whitened Jacobian at (R, T).
+
+    Plane points X*_i = d m*_i / (n^T m*_i) of the reference are transferred into
+    the current frame, X_i = R X*_i + T, and compared with m_i. Each residual's
+    covariance counts the current and the reference observation:
+    Sigma_i = sigma^2 (I + A_i A_i^T), A_i = d pi(X_i) / d m*_i.
+    """
+
+    depth: np.ndarray  # (N,) n^T m*_i
+    P: np.ndarray  # (N, 2, 3) d pi / d X at X_i
+    J: np.ndarray  # (N, 2, 6) d pi(X_i) / d[dtheta; dp], right perturbation of T_wc
+    JtW: np.ndarray  # (N, 6, 2) J_i^T Sigma_i^-1
+    residual: np.ndarray  # (N, 2) m_i - pi(X_i)
+
+
+def _linearize_transfer(
     R: np.ndarray,
     T: np.ndarray,
     m_ref: np.ndarray,
     m_cur: np.ndarray,
     plane: Plane,
     sigma: float,
-) -> tuple[np.ndarray, np.ndarray]:
-    """Information matrix and gradient of the weighted transfer error.
-
-    The camera pose T_wc = (R^T, -R^T T) is perturbed on the right,
-    T_wc Exp([dtheta; dp]); plane points X*_i = d* m*_i / (n*^T m*_i) are
-    transferred into the current frame, X_i = R X*_i + T, and compared with
-    m_i. Each residual's covariance counts the current and the reference
-    observation: Sigma_i = sigma^2 (I + A_i A_i^T).
-
-    Returns:
-        (6, 6) information J^T Sigma^-1 J and (6,) J^T Sigma^-1 r.
-    """
+) -> _TransferLinearization:
     n, d = plane.normal, plane.distance
     depth = m_ref @ n
     X_star = d * m_ref / depth[:, None]
@@ -204,16 +210,34 @@ def _pose_normal_equations(
     dX = np.concatenate(
         (np.stack([skew(x) for x in X]), np.broadcast_to(-np.eye(3), (len(X), 3, 3))), axis=2
     )
-    J = P @ dX  # (N, 2, 6)
+    J = P @ dX
     dXstar = d * (
         np.eye(3)[None] / depth[:, None, None]
         - np.einsum("ni,j->nij", m_ref, n) / depth[:, None, None] ** 2
     )
     A = P @ R @ dXstar[:, :, :2]  # (N, 2, 2)
-    cov = sigma**2 * (np.eye(2)[None] + A @ np.transpose(A, (0, 2, 1)))
-    W = np.linalg.inv(cov)
-    JtW = np.transpose(J, (0, 2, 1)) @ W
-    return np.sum(JtW @ J, axis=0), np.einsum("nij,nj->i", JtW, residual)
+    W = np.linalg.inv(sigma**2 * (np.eye(2)[None] + A @ np.transpose(A, (0, 2, 1))))
+    return _TransferLinearization(depth, P, J, np.transpose(J, (0, 2, 1)) @ W, residual)
+
+
+def _pose_normal_equations(
+    R: np.ndarray,
+    T: np.ndarray,
+    m_ref: np.ndarray,
+    m_cur: np.ndarray,
+    plane: Plane,
+    sigma: float,
+) -> tuple[np.ndarray, np.ndarray]:
+    """Information matrix and gradient of the weighted transfer error.
+
+    The camera pose T_wc = (R^T, -R^T T) is perturbed on the right,
+    T_wc Exp([dtheta; dp]) (see :class:`_TransferLinearization`).
+
+    Returns:
+        (6, 6) information J^T Sigma^-1 J and (6,) J^T Sigma^-1 r.
+    """
+    lin = _linearize_transfer(R, T, m_ref, m_cur, plane, sigma)
+    return np.sum(lin.JtW @ lin.J, axis=0), np.einsum("nij,nj->i", lin.JtW, lin.residual)
 
 
 def _plane_jacobian(
@@ -233,28 +257,16 @@ def _plane_jacobian(
     (dr/dpi) dpi, and the Gauss-Newton optimum by info^-1 J^T W (dr/dpi) dpi.
     """
     n, d = plane.normal, plane.distance
-    depth = m_ref @ n
-    X_star = d * m_ref / depth[:, None]
-    X = X_star @ R.T + T
-    P = _projection_jacobian(X)
-    dX = np.concatenate(
-        (np.stack([skew(x) for x in X]), np.broadcast_to(-np.eye(3), (len(X), 3, 3))), axis=2
-    )
-    J = P @ dX
-    dXstar = d * (
-        np.eye(3)[None] / depth[:, None, None]
-        - np.einsum("ni,j->nij", m_ref, n) / depth[:, None, None] ** 2
-    )
-    A = P @ R @ dXstar[:, :, :2]
-    W = np.linalg.inv(sigma**2 * (np.eye(2)[None] + A @ np.transpose(A, (0, 2, 1))))
+    lin = _linearize_transfer(R, T, m_ref, m_cur, plane, sigma)
+    depth = lin.depth
     # dX*/dn and dX*/dd at fixed m*, then through (phi, rho) of T_wr.
     dXs_dn = -d * np.einsum("ni,nj->nij", m_ref, m_ref) / depth[:, None, None] ** 2
     dXs_dd = m_ref / depth[:, None]
     dXs_dxi = np.concatenate(
         (dXs_dn @ skew(n), -np.einsum("ni,j->nij", dXs_dd, n)), axis=2
     )  # (N, 3, 6)
-    dr_dxi = -(P @ R @ dXs_dxi)  # (N, 2, 6)
-    rhs = np.sum(np.transpose(J, (0, 2, 1)) @ W @ dr_dxi, axis=0)
+    dr_dxi = -(lin.P @ R @ dXs_dxi)  # (N, 2, 6)
+    rhs = np.sum(lin.JtW @ dr_dxi, axis=0)
     return np.linalg.solve(info, rhs)
 
 
