@@ -53,7 +53,7 @@ from pathlib import Path
 import gtsam
 import numpy as np
 
-from hvo_graph.arguments import finite_float, int_at_least
+from hvo_graph.arguments import add_monte_carlo_options, finite_float, int_at_least
 from hvo_graph.errors import InputError
 from hvo_graph.evaluation import ErrorSeries, ErrorSummary, error_series, summarize
 from hvo_graph.experiment import (
@@ -832,22 +832,12 @@ def build_parser() -> argparse.ArgumentParser:
         default=FrontEndConfig().keyframe_min_points,
         help="the front end's keyframe threshold (default: the library's)",
     )
-    parser.add_argument(
-        "--skip",
-        type=finite_float(0.0, strict=False),
-        default=1.0,
-        help="seconds at the start left out of the errors (default 1.0)",
-    )
-    parser.add_argument(
-        "--out-dir",
-        type=Path,
-        help="output folder (default: the repository's docs/; out/images-quick/ with --quick)",
-    )
-    parser.add_argument("--no-progress", action="store_true", help="no progress on stderr")
-    parser.add_argument(
-        "--quick",
-        action="store_true",
-        help=f"1 seed of {QUICK_DURATION:g} s at 320 x 240 px (fx = 600 px) unless given",
+    add_monte_carlo_options(
+        parser,
+        quick_help=f"1 seed of {QUICK_DURATION:g} s at 320 x 240 px (fx = 600 px) unless given",
+        quick_out="out/images-quick/",
+        workers=False,
+        figures_option=False,
     )
     return parser
 

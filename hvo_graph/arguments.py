@@ -64,11 +64,17 @@ def names(choices: Sequence[str], what: str) -> Callable[[str], list[str]]:
 
 
 def add_monte_carlo_options(
-    parser: argparse.ArgumentParser, *, quick_help: str, quick_out: str
+    parser: argparse.ArgumentParser,
+    *,
+    quick_help: str,
+    quick_out: str,
+    workers: bool = True,
+    figures_option: bool = True,
 ) -> None:
     """The options every Monte Carlo script under experiments/ takes.
 
-    --skip, --workers, --out-dir, --no-figures, --no-progress and --quick.
+    --skip, --out-dir, --no-progress and --quick; --workers and --no-figures
+    unless the script has no use for them (``workers``, ``figures_option``).
     """
     parser.add_argument(
         "--skip",
@@ -76,16 +82,18 @@ def add_monte_carlo_options(
         default=1.0,
         help="seconds at the start left out of the errors (default 1.0)",
     )
-    parser.add_argument(
-        "--workers",
-        type=int_at_least(1),
-        help="worker processes (default: os.cpu_count())",
-    )
+    if workers:
+        parser.add_argument(
+            "--workers",
+            type=int_at_least(1),
+            help="worker processes (default: os.cpu_count())",
+        )
     parser.add_argument(
         "--out-dir",
         type=Path,
         help=f"output folder (default: the repository's docs/; {quick_out} with --quick)",
     )
-    parser.add_argument("--no-figures", action="store_true", help="skip the figures")
+    if figures_option:
+        parser.add_argument("--no-figures", action="store_true", help="skip the figures")
     parser.add_argument("--no-progress", action="store_true", help="no progress bar on stderr")
     parser.add_argument("--quick", action="store_true", help=quick_help)
