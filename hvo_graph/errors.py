@@ -1,12 +1,18 @@
-"""The one exception type users see for bad input.
+"""The one exception type users see for bad input, and the checks that raise it.
 
 Every check on user-supplied data (files, arrays, arguments) raises
 :class:`InputError` with a one-line message that names the file, line, key or
 argument and says what was expected. The command line turns it into a line on
-stderr and exit code 2.
+stderr and exit code 2. The checks shared by every module live here: points,
+vectors and matrices of a shape (:func:`as_points`, :func:`as_vector`,
+:func:`as_matrix`), bounded numbers and integers (:func:`as_number`,
+:func:`as_integer`), covariances (:func:`as_covariance`) and rotations
+(:func:`as_rotation`).
 """
 
 from __future__ import annotations
+
+import math
 
 import numpy as np
 
@@ -56,3 +62,75 @@ def as_matrix(array: object, name: str, shape: tuple[int, int]) -> np.ndarray:
     if not np.all(np.isfinite(a)):
         raise InputError(f"{name}: contains NaN or inf")
     return a
+
+
+def _shown(value: object) -> str:
+    """How a rejected value appears in a message: floats plainly, anything else as repr."""
+    return str(float(value)) if isinstance(value, float | np.floating) else repr(value)
+
+
+def as_number(
+    value: object,
+    name: str,
+    *,
+    above: float | None = None,
+    at_least: float | None = None,
+    what: str = "a finite number",
+    unit: str = "",
+) -> float:
+    """Return ``value`` as a finite float (> ``above`` or >= ``at_least``), or raise InputError.
+
+    Args:
+        value: a real number (Python or NumPy scalar; not a bool or a string).
+        name: argument name used in the error message.
+        above: exclusive lower bound, or None.
+        at_least: inclusive lower bound, or None.
+        what: how the message names the expected value, e.g. "a finite time step".
+        unit: appended to the bound in the message, e.g. " s".
+    """
+    op, bound = (">", above) if above is not None else (">=", at_least)
+    x = math.nan
+    if not isinstance(value, bool | str | bytes) and np.ndim(value) == 0:
+        try:
+            x = float(value)  # type: ignore[arg-type]
+        except (TypeError, ValueError):
+            pass
+    if not math.isfinite(x) or (
+        bound is not None and not (x > bound if above is not None else x >= bound)
+    ):
+        limit = "" if bound is None else f" {op} {bound:g}{unit}"
+        raise InputError(f"{name}: expected {what}{limit}, got {_shown(value)}")
+    return x
+
+
+def as_integer(value: object, name: str, minimum: int, *, what: str = "an integer") -> int:
+    """Return ``value`` as an int >= ``minimum`` (a Python or NumPy integer, not a bool)."""
+    if (
+        isinstance(value, bool) or not isinstance(value, int | np.integer) or value < minimum  # type: ignore[operator]
+    ):
+        raise InputError(f"{name}: expected {what} >= {minimum}, got {value!r}")
+    return int(value)
+
+
+def as_covariance(matrix: object, name: str, size: int) -> np.ndarray:
+    """Return ``matrix`` as a finite, symmetric, positive-definite (size, size) float array.
+
+    Symmetric means max |C - C^T| <= 1e-9 max |C|; positive definite, that the
+    Cholesky factorization exists. The array is returned as given, not symmetrized.
+    """
+    c = as_matrix(matrix, name, (size, size))
+    if np.abs(c - c.T).max() > 1e-9 * np.abs(c).max():
+        raise InputError(f"{name}: expected a symmetric matrix")
+    try:
+        np.linalg.cholesky(c)
+    except np.linalg.LinAlgError:
+        raise InputError(f"{name}: expected a positive definite matrix") from None
+    return c
+
+
+def as_rotation(matrix: object, name: str) -> np.ndarray:
+    """Return ``matrix`` as a (3, 3) rotation: max |R^T R - I| <= 1e-6 and det R > 0."""
+    R = as_matrix(matrix, name, (3, 3))
+    if np.abs(R.T @ R - np.eye(3)).max() > 1e-6 or np.linalg.det(R) <= 0:
+        raise InputError(f"{name}: expected a rotation matrix (R^T R = I, det R = +1)")
+    return R

@@ -45,7 +45,7 @@ from typing import TextIO
 
 import numpy as np
 
-from hvo_graph.errors import InputError
+from hvo_graph.errors import InputError, as_integer, as_number
 from hvo_graph.estimators.base import Estimator
 from hvo_graph.evaluation import ErrorSeries, ErrorSummary, error_series, summarize
 from hvo_graph.io._common import atomic_write_text
@@ -208,8 +208,7 @@ def run_seed(
     methods = check_methods(methods)
     if not isinstance(config, ScenarioConfig):
         raise InputError(f"config: expected a ScenarioConfig, got {type(config).__name__}")
-    if not (isinstance(skip, int | float) and math.isfinite(skip) and skip >= 0):
-        raise InputError(f"skip: expected a number of seconds >= 0, got {skip!r}")
+    skip = as_number(skip, "skip", at_least=0.0, what="a number of seconds")
     if skip >= config.duration:
         raise InputError(
             f"skip: {skip:g} s leaves no frame of a {config.duration:g} s sequence to evaluate"
@@ -287,9 +286,7 @@ class ProgressBar:
         enabled: bool = True,
         clock: Callable[[], float] = time.monotonic,
     ) -> None:
-        if isinstance(total, bool) or not isinstance(total, int) or total < 1:
-            raise InputError(f"total: expected an integer >= 1, got {total!r}")
-        self.total = total
+        self.total = as_integer(total, "total", 1)
         self.label = label
         self.stream = sys.stderr if stream is None else stream
         self.width = width
@@ -351,9 +348,7 @@ def resolve_workers(workers: int | None) -> int:
     """Worker processes: ``workers`` (>= 1), or ``os.cpu_count()`` when None."""
     if workers is None:
         return max(1, os.cpu_count() or 1)
-    if isinstance(workers, bool) or not isinstance(workers, int) or workers < 1:
-        raise InputError(f"workers: expected an integer >= 1, got {workers!r}")
-    return workers
+    return as_integer(workers, "workers", 1)
 
 
 @contextmanager

@@ -41,7 +41,7 @@ from dataclasses import dataclass
 import cv2
 import numpy as np
 
-from hvo_graph.errors import InputError
+from hvo_graph.errors import InputError, as_integer, as_number
 from hvo_graph.geometry.camera import CameraModel
 from hvo_graph.geometry.continuous import (
     body_twist_from_scene_motion,
@@ -108,32 +108,18 @@ class FrontEndConfig:
     keyframe_min_points: int | None = 30
 
     def __post_init__(self) -> None:
-        if not (np.isfinite(self.pixel_sigma) and self.pixel_sigma >= 0):
-            raise InputError(f"pixel_sigma: expected a number >= 0, got {self.pixel_sigma}")
-
-        def integer(name: str, minimum: int) -> None:
-            value = getattr(self, name)
-            if (
-                isinstance(value, bool)
-                or not isinstance(value, int | np.integer)
-                or value < minimum
-            ):
-                raise InputError(f"{name}: expected an integer >= {minimum}, got {value!r}")
-
-        integer("min_points", 4)
-        integer("refine_iterations", 0)
+        as_number(self.pixel_sigma, "pixel_sigma", at_least=0.0, what="a number")
+        as_integer(self.min_points, "min_points", 4)
+        as_integer(self.refine_iterations, "refine_iterations", 0)
         if self.keyframe_min_points is not None:
-            integer("keyframe_min_points", self.min_points)
-        if not (np.isfinite(self.min_parallax) and self.min_parallax >= 0):
-            raise InputError(
-                f"min_parallax: expected a finite number >= 0, got {self.min_parallax}"
-            )
+            as_integer(self.keyframe_min_points, "keyframe_min_points", self.min_points)
+        as_number(self.min_parallax, "min_parallax", at_least=0.0)
         if self.pose_solver not in POSE_SOLVERS:
             raise InputError(
                 f"pose_solver: expected one of {', '.join(POSE_SOLVERS)}, got {self.pose_solver!r}"
             )
-        if self.ransac_threshold_px is not None and not self.ransac_threshold_px > 0:
-            raise InputError(f"ransac_threshold_px: expected > 0, got {self.ransac_threshold_px}")
+        if self.ransac_threshold_px is not None:
+            as_number(self.ransac_threshold_px, "ransac_threshold_px", above=0.0)
 
 
 @dataclass(frozen=True)

@@ -43,7 +43,7 @@ from collections.abc import Sequence
 import cv2
 import numpy as np
 
-from hvo_graph.errors import InputError, as_matrix, as_vector
+from hvo_graph.errors import InputError, as_integer, as_matrix, as_number, as_rotation, as_vector
 from hvo_graph.geometry.camera import CameraModel
 from hvo_graph.types import Plane
 
@@ -142,8 +142,7 @@ def make_texture(
     Returns:
         (S, S) float32 in [20, 235].
     """
-    if block_texels < 2:
-        raise InputError(f"block_texels: expected an integer >= 2, got {block_texels}")
+    as_integer(block_texels, "block_texels", 2)
     if size < 1:
         raise InputError(f"size: expected a positive number of texels, got {size}")
     rng = np.random.default_rng(seed)
@@ -197,10 +196,9 @@ def render_plane_images(
         InputError: no plane normal, a bad pose, a camera behind or on the plane.
     """
     normal = _plane_normal(plane)
-    if not (np.isfinite(noise_sigma) and noise_sigma >= 0):
-        raise InputError(f"noise_sigma: expected a number >= 0, got {noise_sigma}")
-    if texture_size_m is not None and not (np.isfinite(texture_size_m) and texture_size_m > 0):
-        raise InputError(f"texture_size_m: expected a number > 0, got {texture_size_m}")
+    as_number(noise_sigma, "noise_sigma", at_least=0.0)
+    if texture_size_m is not None:
+        as_number(texture_size_m, "texture_size_m", above=0.0)
     rng = np.random.default_rng(seed)
     if texture is None:
         side = _FOOTPRINT_FACTOR * max(camera.width, camera.height)
@@ -280,11 +278,7 @@ def _as_pose(pose: object, name: str) -> tuple[np.ndarray, np.ndarray]:
             R, p = pose  # type: ignore[misc]
         except (TypeError, ValueError):
             raise InputError(f"{name}: expected a gtsam.Pose3 or a pair (R_wc, p_wc)") from None
-    R = as_matrix(R, f"{name} rotation", (3, 3))
-    p = as_vector(p, f"{name} position", 3)
-    if not np.allclose(R.T @ R, np.eye(3), atol=1e-6) or np.linalg.det(R) <= 0:
-        raise InputError(f"{name}: R_wc is not a rotation matrix")
-    return R, p
+    return as_rotation(R, f"{name} rotation"), as_vector(p, f"{name} position", 3)
 
 
 def _pixel_rays(camera: CameraModel) -> np.ndarray:

@@ -64,7 +64,7 @@ from pathlib import Path
 import gtsam
 import numpy as np
 
-from hvo_graph.errors import InputError
+from hvo_graph.errors import InputError, as_integer, as_number
 from hvo_graph.geometry.camera import CameraModel
 from hvo_graph.types import FrameObservations, Plane, Trajectory
 
@@ -124,37 +124,13 @@ class ScenarioConfig:
     substeps: int = 8
 
     def __post_init__(self) -> None:
-        def number(name: str, *, positive: bool = False, allow_zero: bool = True) -> None:
-            value = getattr(self, name)
-            ok = isinstance(value, int | float) and not isinstance(value, bool)
-            ok = ok and math.isfinite(value)
-            if ok and positive:
-                ok = value > 0 or (allow_zero and value == 0)
-            if not ok:
-                want = "> 0" if positive and not allow_zero else ">= 0" if positive else ""
-                raise InputError(
-                    f"ScenarioConfig.{name}: expected a finite number {want}".rstrip()
-                    + f", got {value!r}"
-                )
-
-        def integer(name: str, minimum: int) -> None:
-            value = getattr(self, name)
-            is_int = isinstance(value, int | np.integer) and not isinstance(value, bool)
-            if not is_int or value < minimum:
-                raise InputError(
-                    f"ScenarioConfig.{name}: expected an integer >= {minimum}, got {value!r}"
-                )
-
-        number("duration", positive=True, allow_zero=False)
-        number("fps", positive=True, allow_zero=False)
-        number("noise_var", positive=True)
-        number("half_size", positive=True, allow_zero=False)
-        number("base_frequency", positive=True, allow_zero=False)
-        number("phase_time")
-        number("view_margin", positive=True)
-        integer("num_points", 4)
-        integer("seed", 0)
-        integer("substeps", 1)
+        for name in ("duration", "fps", "half_size", "base_frequency"):
+            as_number(getattr(self, name), f"ScenarioConfig.{name}", above=0.0)
+        for name in ("noise_var", "view_margin"):
+            as_number(getattr(self, name), f"ScenarioConfig.{name}", at_least=0.0)
+        as_number(self.phase_time, "ScenarioConfig.phase_time")
+        for name, minimum in (("num_points", 4), ("seed", 0), ("substeps", 1)):
+            as_integer(getattr(self, name), f"ScenarioConfig.{name}", minimum)
         if self.duration * self.fps < 1.0 - 1e-9:
             raise InputError(
                 f"ScenarioConfig.duration: expected at least one frame interval "

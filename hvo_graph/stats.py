@@ -28,7 +28,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from hvo_graph.errors import InputError
+from hvo_graph.errors import InputError, as_integer
 
 #: Degrees of freedom up to which :func:`t_quantile` inverts the exact distribution function.
 EXACT_DF_LIMIT = 1000
@@ -132,9 +132,7 @@ def t_quantile(p: float, df: int) -> float:
         InputError: p outside (0, 1) or df not an integer >= 1.
     """
     p = _probability(p)
-    if isinstance(df, bool) or not isinstance(df, int | np.integer) or df < 1:
-        raise InputError(f"df: expected an integer >= 1, got {df!r}")
-    df = int(df)
+    df = as_integer(df, "df", 1)
     if p == 0.5:
         return 0.0
     upper = p > 0.5

@@ -50,7 +50,7 @@ from pathlib import Path
 import cv2
 import numpy as np
 
-from hvo_graph.errors import InputError
+from hvo_graph.errors import InputError, as_integer, as_number
 from hvo_graph.geometry.camera import CameraModel
 from hvo_graph.types import FrameObservations
 
@@ -107,12 +107,15 @@ class TrackerConfig:
     refine_max_px: float | None = 1.0
 
     def __post_init__(self) -> None:
-        _check_int(self.max_features, "max_features", 1)
-        _check_int(self.block_size, "block_size", 3)
-        _check_int(self.lk_window, "lk_window", 3)
-        _check_int(self.lk_levels, "lk_levels", 0)
-        _check_int(self.lk_iterations, "lk_iterations", 1)
-        _check_int(self.min_tracked, "min_tracked", 0)
+        for name, minimum in (
+            ("max_features", 1),
+            ("block_size", 3),
+            ("lk_window", 3),
+            ("lk_levels", 0),
+            ("lk_iterations", 1),
+            ("min_tracked", 0),
+        ):
+            as_integer(getattr(self, name), name, minimum)
         if self.min_tracked > self.max_features:
             raise InputError(
                 f"min_tracked: expected at most max_features ({self.max_features}), "
@@ -123,24 +126,12 @@ class TrackerConfig:
                 f"quality_level: expected a number in (0, 1), got {self.quality_level}"
             )
         for name in ("lk_epsilon", "fb_threshold_px"):
-            _check_positive(getattr(self, name), name)
+            as_number(getattr(self, name), name, above=0.0)
         for name in ("min_distance", "border_margin_px"):
-            value = getattr(self, name)
-            if not (np.isfinite(value) and value >= 0):
-                raise InputError(f"{name}: expected a number >= 0, got {value}")
+            as_number(getattr(self, name), name, at_least=0.0)
         for name in ("ransac_threshold_px", "refine_max_px"):
             if getattr(self, name) is not None:
-                _check_positive(getattr(self, name), name)
-
-
-def _check_int(value: object, name: str, minimum: int) -> None:
-    if isinstance(value, bool) or not isinstance(value, int | np.integer) or value < minimum:
-        raise InputError(f"{name}: expected an integer >= {minimum}, got {value!r}")
-
-
-def _check_positive(value: float, name: str) -> None:
-    if not (np.isfinite(value) and value > 0):
-        raise InputError(f"{name}: expected a number > 0, got {value}")
+                as_number(getattr(self, name), name, above=0.0)
 
 
 class FeatureTracker:
@@ -580,8 +571,8 @@ def load_image_sequence(
         The frames (read lazily; gray uint8) and their K times in seconds.
     """
     path = Path(path)
-    if fps is not None and not (np.isfinite(fps) and fps > 0):
-        raise InputError(f"fps: expected a number > 0, got {fps}")
+    if fps is not None:
+        as_number(fps, "fps", above=0.0, what="a number")
     if not path.exists():
         raise InputError(f"{path}: no such directory or video file")
     if path.is_dir():

@@ -17,7 +17,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from hvo_graph.errors import InputError, as_vector
+from hvo_graph.errors import InputError, as_number, as_vector
 
 
 @dataclass(frozen=True)
@@ -34,8 +34,7 @@ class Plane:
     normal: np.ndarray | None = None
 
     def __post_init__(self) -> None:
-        if not (np.isfinite(self.distance) and self.distance > 0):
-            raise InputError(f"plane.distance: expected a finite number > 0, got {self.distance}")
+        as_number(self.distance, "plane.distance", above=0.0)
         if self.normal is not None:
             n = as_vector(self.normal, "plane.normal", 3)
             norm = np.linalg.norm(n)

@@ -38,7 +38,7 @@ from collections.abc import Sequence
 import gtsam
 import numpy as np
 
-from hvo_graph.errors import InputError
+from hvo_graph.errors import InputError, as_number
 
 __all__ = [
     "interval_weights",
@@ -106,8 +106,7 @@ def motion_factor(
     Returns:
         A ``gtsam.CustomFactor`` with keys [X_{k-1}, X_k, V_{k-1}, V_k].
     """
-    if not (np.isfinite(dt) and dt > 0):
-        raise InputError(f"dt: expected a finite number > 0, got {dt}")
+    dt = as_number(dt, "dt", above=0.0)
     if noise.dim() != 6:
         raise InputError(
             f"noise: expected a 6-dimensional noise model, got dimension {noise.dim()}"

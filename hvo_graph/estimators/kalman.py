@@ -32,7 +32,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from hvo_graph.errors import InputError, as_matrix, as_vector
+from hvo_graph.errors import InputError, as_covariance, as_integer, as_matrix, as_number, as_vector
 from hvo_graph.estimators.base import Estimator
 from hvo_graph.geometry.rotation import euler_to_rotation, rotation_to_euler, skew, wrap_angle
 from hvo_graph.types import FrameMeasurement, StateEstimate
@@ -176,13 +176,7 @@ def process_covariance(dt: float, s: Sequence[float] | np.ndarray) -> np.ndarray
 
 
 def _check_dt(dt: float) -> float:
-    try:
-        dt = float(dt)
-    except (TypeError, ValueError):
-        raise InputError(f"dt: expected a number > 0, got {dt!r}") from None
-    if not (np.isfinite(dt) and dt > 0):
-        raise InputError(f"dt: expected a finite time step > 0 s, got {dt}")
-    return dt
+    return as_number(dt, "dt", above=0.0, what="a finite time step", unit=" s")
 
 
 def _check_process_noise(s: object) -> np.ndarray:
@@ -355,26 +349,19 @@ class KalmanBaseline(Estimator):
         super().__init__()
         if r_preset not in R_PRESETS:
             raise InputError(f"r_preset: expected one of {', '.join(R_PRESETS)}, got {r_preset!r}")
-        if seed is not None and (
-            not isinstance(seed, int | np.integer) or isinstance(seed, bool) or seed < 0
-        ):
-            raise InputError(f"seed: expected None or an integer >= 0, got {seed!r}")
+        if seed is not None:
+            as_integer(seed, "seed", 0, what="None or an integer")
         self.r_preset = r_preset
         self.process_noise = _check_process_noise(
             DEFAULT_PROCESS_NOISE if process_noise is None else process_noise
         )
         self.world_frame_velocity = bool(world_frame_velocity)
-        P0 = (
-            DEFAULT_INITIAL_COVARIANCE
-            if initial_covariance is None
-            else as_matrix(initial_covariance, "initial_covariance", (12, 12))
+        P0 = as_covariance(
+            DEFAULT_INITIAL_COVARIANCE if initial_covariance is None else initial_covariance,
+            "initial_covariance",
+            12,
         )
-        if not np.allclose(P0, P0.T, rtol=0.0, atol=1e-12 * max(1.0, np.abs(P0).max())):
-            raise InputError("initial_covariance: expected a symmetric matrix")
-        try:
-            L = np.linalg.cholesky(P0)
-        except np.linalg.LinAlgError:
-            raise InputError("initial_covariance: expected a positive definite matrix") from None
+        L = np.linalg.cholesky(P0)
         if initial_state is not None:
             x0 = as_vector(initial_state, "initial_state", 12).copy()
         elif random_init:

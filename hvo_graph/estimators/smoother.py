@@ -54,7 +54,7 @@ import gtsam
 import numpy as np
 from gtsam.symbol_shorthand import V, X
 
-from hvo_graph.errors import InputError
+from hvo_graph.errors import InputError, as_covariance, as_integer, as_number, as_rotation
 from hvo_graph.estimators.base import Estimator
 from hvo_graph.estimators.factors import (
     _mean_velocity_factor,
@@ -132,46 +132,20 @@ MARGINALIZATION_BLOCKS: int = 10
 _ZERO6 = np.zeros(6)
 
 
-def _positive(value: object, name: str) -> float:
-    try:
-        x = float(value)  # type: ignore[arg-type]
-    except (TypeError, ValueError):
-        raise InputError(f"{name}: expected a number > 0, got {value!r}") from None
-    if not (math.isfinite(x) and x > 0):
-        raise InputError(f"{name}: expected a finite number > 0, got {value!r}")
-    return x
-
-
 def _checked_covariance(matrix: object, name: str) -> np.ndarray:
-    """A (6, 6) symmetric positive definite covariance, or InputError naming ``name``."""
-    c = np.asarray(matrix, dtype=float)
-    if c.shape != (6, 6):
-        raise InputError(f"{name}: expected shape (6, 6), got {c.shape}")
-    if not np.isfinite(c).all():
-        raise InputError(f"{name}: contains NaN or inf")
-    if np.abs(c - c.T).max() > 1e-9 * np.abs(c).max():
-        raise InputError(f"{name}: expected a symmetric matrix")
-    try:
-        np.linalg.cholesky(c)
-    except np.linalg.LinAlgError:
-        raise InputError(f"{name}: expected a positive definite matrix") from None
+    """A (6, 6) symmetric positive definite covariance, symmetrized, or InputError."""
+    c = as_covariance(matrix, name, 6)
     return 0.5 * (c + c.T)
 
 
 def _checked_pose(pose: PoseMeasurement, k: int) -> tuple[gtsam.Pose3, np.ndarray, int]:
     name = f"frame {k}: pose"
-    R = np.asarray(pose.rotation, dtype=float)
+    R = as_rotation(pose.rotation, f"{name}.rotation")
     p = np.asarray(pose.position, dtype=float)
-    if R.shape != (3, 3) or not np.all(np.isfinite(R)):
-        raise InputError(f"{name}.rotation: expected a finite (3, 3) matrix, got shape {R.shape}")
-    if np.abs(R.T @ R - np.eye(3)).max() > 1e-6 or np.linalg.det(R) <= 0:
-        raise InputError(f"{name}.rotation: expected a rotation matrix (R^T R = I, det R = +1)")
     if p.shape != (3,) or not np.all(np.isfinite(p)):
         raise InputError(f"{name}.position: expected a finite (3,) vector, got shape {p.shape}")
     cov = _checked_covariance(pose.covariance, f"{name}.covariance")
-    ref = pose.reference
-    if isinstance(ref, bool) or not isinstance(ref, int | np.integer) or ref < 0:
-        raise InputError(f"{name}.reference: expected a frame index >= 0, got {ref!r}")
+    ref = as_integer(pose.reference, f"{name}.reference", 0, what="a frame index")
     if ref != 0 and ref >= k:
         raise InputError(f"{name}.reference: expected an earlier frame than {k}, got {ref}")
     return gtsam.Pose3(gtsam.Rot3(R), p), cov, int(ref)
@@ -200,11 +174,9 @@ def _keyframe_model(pose: PoseMeasurement, k: int) -> tuple[gtsam.Pose3, np.ndar
         raise InputError(
             f"{name}: reference_rotation, reference_position and plane_jacobian go together"
         )
-    R = np.asarray(pose.reference_rotation, dtype=float)
+    R = as_rotation(pose.reference_rotation, f"{name}.reference_rotation")
     p = np.asarray(pose.reference_position, dtype=float)
     J = np.asarray(pose.plane_jacobian, dtype=float)
-    if R.shape != (3, 3) or not np.all(np.isfinite(R)) or np.abs(R.T @ R - np.eye(3)).max() > 1e-6:
-        raise InputError(f"{name}.reference_rotation: expected a (3, 3) rotation matrix")
     if p.shape != (3,) or not np.all(np.isfinite(p)):
         raise InputError(f"{name}.reference_position: expected a finite (3,) vector")
     if J.shape != (6, 6) or not np.all(np.isfinite(J)):
@@ -319,7 +291,7 @@ class FactorGraphSmoother(Estimator):
             raise InputError(f"solver: expected one of {', '.join(SOLVERS)}, got {solver!r}")
         self.solver = solver
         self.name = SOLVERS[solver]
-        self.lag = _positive(lag, "lag")
+        self.lag = as_number(lag, "lag", above=0.0)
         sigma = np.atleast_1d(np.asarray(acceleration_sigma, dtype=float))
         if sigma.shape == (1,):
             sigma = np.repeat(sigma, 2)
@@ -339,30 +311,17 @@ class FactorGraphSmoother(Estimator):
         self.robust_threshold = (
             DEFAULT_ROBUST_THRESHOLD
             if robust_threshold is None
-            else _positive(robust_threshold, "robust_threshold")
+            else as_number(robust_threshold, "robust_threshold", above=0.0)
         )
         self.compute_covariance = bool(compute_covariance)
         self._world_noise = gtsam.noiseModel.Isotropic.Sigma(
-            6, _positive(world_sigma, "world_sigma")
+            6, as_number(world_sigma, "world_sigma", above=0.0)
         )
         self._twist_prior_noise = gtsam.noiseModel.Isotropic.Sigma(
-            6, _positive(initial_twist_sigma, "initial_twist_sigma")
+            6, as_number(initial_twist_sigma, "initial_twist_sigma", above=0.0)
         )
-        if (
-            isinstance(max_iterations, bool)
-            or not isinstance(max_iterations, int)
-            or max_iterations < 1
-        ):
-            raise InputError(f"max_iterations: expected an integer >= 1, got {max_iterations!r}")
-        self.max_iterations = max_iterations
-        if (
-            isinstance(relinearize_skip, bool)
-            or not isinstance(relinearize_skip, int)
-            or relinearize_skip < 1
-        ):
-            raise InputError(
-                f"relinearize_skip: expected an integer >= 1, got {relinearize_skip!r}"
-            )
+        self.max_iterations = as_integer(max_iterations, "max_iterations", 1)
+        relinearize_skip = as_integer(relinearize_skip, "relinearize_skip", 1)
 
         # Frame bookkeeping: index and time of every frame, position by index.
         self._indices: list[int] = []
@@ -377,7 +336,7 @@ class FactorGraphSmoother(Estimator):
         # constant Jacobians (motion: -dt/2 I; measured and random-walk twists: linear).
         thresholds = gtsam.ISAM2ThresholdMap()
         thresholds.insert(
-            ("x", np.full(6, _positive(relinearize_threshold, "relinearize_threshold")))
+            ("x", np.full(6, as_number(relinearize_threshold, "relinearize_threshold", above=0.0)))
         )
         thresholds.insert(("v", np.full(6, np.inf)))
         params.setRelinearizeThreshold(thresholds)
@@ -492,12 +451,9 @@ class FactorGraphSmoother(Estimator):
         return indices, weights
 
     def _update(self, frame: FrameMeasurement) -> StateEstimate:
-        k, t = frame.index, float(frame.t)
-        if isinstance(k, bool) or not isinstance(k, int | np.integer) or k < 0:
-            raise InputError(f"frame.index: expected an integer >= 0, got {k!r}")
+        k, t = as_integer(frame.index, "frame.index", 0), float(frame.t)
         if not math.isfinite(t):
             raise InputError(f"frame {k}: t is not finite ({frame.t})")
-        k = int(k)
         pose_meas = None if frame.pose is None else _checked_pose(frame.pose, k)
         twist_meas = None if frame.velocity is None else _checked_velocity(frame.velocity, k)
         if pose_meas is not None and pose_meas[2] != 0 and pose_meas[2] not in self._position:

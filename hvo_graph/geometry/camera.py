@@ -12,7 +12,7 @@ from dataclasses import dataclass, field
 import cv2
 import numpy as np
 
-from hvo_graph.errors import InputError, as_points
+from hvo_graph.errors import InputError, as_number, as_points
 
 #: OpenCV's default stops undistortion after 5 fixed-point iterations, which leaves
 #: errors of ~1e-5 (normalized; ~0.01 px) under strong distortion; iterate to convergence.
@@ -41,12 +41,9 @@ class CameraModel:
 
     def __post_init__(self) -> None:
         for name in ("fx", "fy"):
-            value = getattr(self, name)
-            if not (np.isfinite(value) and value > 0):
-                raise InputError(f"camera.{name}: expected a finite number > 0, got {value}")
+            as_number(getattr(self, name), f"camera.{name}", above=0.0)
         for name in ("cx", "cy"):
-            if not np.isfinite(getattr(self, name)):
-                raise InputError(f"camera.{name}: expected a finite number")
+            as_number(getattr(self, name), f"camera.{name}")
         for name in ("width", "height"):
             value = getattr(self, name)
             if int(value) != value or value <= 0:

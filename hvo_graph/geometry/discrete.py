@@ -30,7 +30,7 @@ from dataclasses import dataclass
 import cv2
 import numpy as np
 
-from hvo_graph.errors import InputError, as_matrix, as_points, as_vector
+from hvo_graph.errors import InputError, as_matrix, as_number, as_points, as_vector
 from hvo_graph.geometry.rotation import nearest_rotation
 
 #: Smallest accepted ratio sigma_8 / sigma_1 of the (Hartley-normalized) DLT
@@ -93,13 +93,7 @@ def positive_distance(distance: object, name: str = "distance") -> float:
     Raises:
         InputError: not a scalar, NaN/inf, or <= 0.
     """
-    try:
-        d = float(distance) if np.ndim(distance) == 0 else np.nan
-    except (TypeError, ValueError):
-        d = np.nan
-    if not (np.isfinite(d) and d > 0):
-        raise InputError(f"{name}: expected a finite number > 0, got {distance!r}")
-    return d
+    return as_number(distance, name, above=0.0)
 
 
 def _pair(m_ref: object, m_cur: object, min_points: int) -> tuple[np.ndarray, np.ndarray]:
@@ -206,9 +200,7 @@ def estimate_homography(
     a, b = _pair(m_ref, m_cur, 4)
     inliers = np.ones(len(a), dtype=bool)
     if ransac_threshold is not None:
-        thr = float(ransac_threshold)
-        if not (np.isfinite(thr) and thr > 0):
-            raise InputError(f"ransac_threshold: expected a finite number > 0, got {thr!r}")
+        thr = as_number(ransac_threshold, "ransac_threshold", above=0.0)
         try:
             H_cv, mask = cv2.findHomography(a[:, :2], b[:, :2], cv2.RANSAC, thr)
         except cv2.error as exc:

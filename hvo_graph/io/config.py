@@ -30,7 +30,7 @@ from dataclasses import dataclass
 import numpy as np
 import yaml
 
-from hvo_graph.errors import InputError
+from hvo_graph.errors import InputError, as_number
 from hvo_graph.geometry.camera import CameraModel
 from hvo_graph.io._common import PathLike, atomic_write_text, fmt, read_text
 from hvo_graph.types import Plane
@@ -63,12 +63,8 @@ class SceneConfig:
             raise InputError(f"camera: expected a CameraModel, got {type(self.camera).__name__}")
         if not isinstance(self.plane, Plane):
             raise InputError(f"plane: expected a Plane, got {type(self.plane).__name__}")
-        if self.pixel_sigma is not None and not (
-            np.isfinite(self.pixel_sigma) and self.pixel_sigma >= 0
-        ):
-            raise InputError(
-                f"noise.pixel_sigma: expected a finite number >= 0, got {self.pixel_sigma}"
-            )
+        if self.pixel_sigma is not None:
+            as_number(self.pixel_sigma, "noise.pixel_sigma", at_least=0.0)
 
 
 class _Reader:
