@@ -56,7 +56,11 @@ from hvo_graph.geometry.discrete import (
     motion_from_homography_known_normal,
     physically_valid_solutions,
 )
-from hvo_graph.geometry.rotation import skew
+from hvo_graph.geometry.transfer import (
+    keyframe_plane_jacobian,
+    pose_normal_equations,
+    retract_motion,
+)
 from hvo_graph.types import (
     FrameMeasurement,
     FrameObservations,
@@ -149,125 +153,6 @@ def _common(a: _Frame, ids: np.ndarray, m: np.ndarray) -> tuple[np.ndarray, np.n
     return a.m[ia], m[ib]
 
 
-def _projection_jacobian(X: np.ndarray) -> np.ndarray:
-    """(N, 2, 3) Jacobians of pi(X) = X[:2] / X[2]."""
-    z = X[:, 2]
-    J = np.zeros((len(X), 2, 3))
-    J[:, 0, 0] = J[:, 1, 1] = 1.0 / z
-    J[:, 0, 2] = -X[:, 0] / z**2
-    J[:, 1, 2] = -X[:, 1] / z**2
-    return J
-
-
-@dataclass(frozen=True)
-class _TransferLinearization:
-    """The transfer residuals of the plane points and their whitened Jacobian at (R, T).
-
-    Plane points X*_i = d m*_i / (n^T m*_i) of the reference are transferred into
-    the current frame, X_i = R X*_i + T, and compared with m_i. Each residual's
-    covariance counts the current and the reference observation:
-    Sigma_i = sigma^2 (I + A_i A_i^T), A_i = d pi(X_i) / d m*_i.
-    """
-
-    depth: np.ndarray  # (N,) n^T m*_i
-    P: np.ndarray  # (N, 2, 3) d pi / d X at X_i
-    J: np.ndarray  # (N, 2, 6) d pi(X_i) / d[dtheta; dp], right perturbation of T_wc
-    JtW: np.ndarray  # (N, 6, 2) J_i^T Sigma_i^-1
-    residual: np.ndarray  # (N, 2) m_i - pi(X_i)
-
-
-def _linearize_transfer(
-    R: np.ndarray,
-    T: np.ndarray,
-    m_ref: np.ndarray,
-    m_cur: np.ndarray,
-    plane: Plane,
-    sigma: float,
-) -> _TransferLinearization:
-    n, d = plane.normal, plane.distance
-    depth = m_ref @ n
-    X_star = d * m_ref / depth[:, None]
-    X = X_star @ R.T + T
-    if np.any(X[:, 2] <= 0):
-        raise InputError("points behind the camera: a plane point has non-positive depth")
-    P = _projection_jacobian(X)
-    residual = m_cur[:, :2] - X[:, :2] / X[:, 2:3]
-    # dX/d[dtheta, dp] for the right perturbation of T_wc: [X^, -I].
-    dX = np.concatenate(
-        (np.stack([skew(x) for x in X]), np.broadcast_to(-np.eye(3), (len(X), 3, 3))), axis=2
-    )
-    J = P @ dX
-    dXstar = d * (
-        np.eye(3)[None] / depth[:, None, None]
-        - np.einsum("ni,j->nij", m_ref, n) / depth[:, None, None] ** 2
-    )
-    A = P @ R @ dXstar[:, :, :2]  # (N, 2, 2)
-    W = np.linalg.inv(sigma**2 * (np.eye(2)[None] + A @ np.transpose(A, (0, 2, 1))))
-    return _TransferLinearization(depth, P, J, np.transpose(J, (0, 2, 1)) @ W, residual)
-
-
-def _pose_normal_equations(
-    R: np.ndarray,
-    T: np.ndarray,
-    m_ref: np.ndarray,
-    m_cur: np.ndarray,
-    plane: Plane,
-    sigma: float,
-) -> tuple[np.ndarray, np.ndarray]:
-    """Information matrix and gradient of the weighted transfer error.
-
-    The camera pose T_wc = (R^T, -R^T T) is perturbed on the right,
-    T_wc Exp([dtheta; dp]) (see :class:`_TransferLinearization`).
-
-    Returns:
-        (6, 6) information J^T Sigma^-1 J and (6,) J^T Sigma^-1 r.
-    """
-    lin = _linearize_transfer(R, T, m_ref, m_cur, plane, sigma)
-    return np.sum(lin.JtW @ lin.J, axis=0), np.einsum("nij,nj->i", lin.JtW, lin.residual)
-
-
-def _plane_jacobian(
-    R: np.ndarray,
-    T: np.ndarray,
-    m_ref: np.ndarray,
-    m_cur: np.ndarray,
-    plane: Plane,
-    sigma: float,
-    info: np.ndarray,
-) -> np.ndarray:
-    """(6, 6) d xi_rc / d xi_wr of the refined keyframe-relative pose (implicit function theorem).
-
-    The plane in the keyframe is n_r = R_wr^T n*, d_r = d* - n*^T p_wr; a right perturbation
-    T_wr Exp([phi; rho]) moves it by dn_r = n_r^ phi, dd_r = -n_r^T rho. The transfer
-    residuals r_i = m_i - pi(R X*_i + T), X*_i = d_r m*_i / (n_r^T m*_i), then move by
-    (dr/dpi) dpi, and the Gauss-Newton optimum by info^-1 J^T W (dr/dpi) dpi.
-    """
-    n, d = plane.normal, plane.distance
-    lin = _linearize_transfer(R, T, m_ref, m_cur, plane, sigma)
-    depth = lin.depth
-    # dX*/dn and dX*/dd at fixed m*, then through (phi, rho) of T_wr.
-    dXs_dn = -d * np.einsum("ni,nj->nij", m_ref, m_ref) / depth[:, None, None] ** 2
-    dXs_dd = m_ref / depth[:, None]
-    dXs_dxi = np.concatenate(
-        (dXs_dn @ skew(n), -np.einsum("ni,j->nij", dXs_dd, n)), axis=2
-    )  # (N, 3, 6)
-    dr_dxi = -(lin.P @ R @ dXs_dxi)  # (N, 2, 6)
-    rhs = np.sum(lin.JtW @ dr_dxi, axis=0)
-    return np.linalg.solve(info, rhs)
-
-
-def _retract_motion(
-    R: np.ndarray, T: np.ndarray, delta: np.ndarray
-) -> tuple[np.ndarray, np.ndarray]:
-    """Apply a right perturbation of T_wc to the motion (R, T) = T_cw."""
-    import gtsam  # local: keeps `import hvo_graph.frontend` light
-
-    R_wc, p_wc = camera_pose_from_motion(R, T)
-    pose = gtsam.Pose3(gtsam.Rot3(R_wc), p_wc).retract(delta)
-    R_new = pose.rotation().matrix().T
-    return R_new, -R_new @ pose.translation()
-
-
 class MeasurementFrontEnd:
     """Streaming front end: one :meth:`process` call per frame, in order.
 
@@ -345,11 +230,11 @@ class MeasurementFrontEnd:
             m_ref, m_cur = m_ref[inliers], m_cur[inliers]
         info = np.eye(6)
         for _ in range(self.config.refine_iterations + 1):
-            info, grad = _pose_normal_equations(R, T, m_ref, m_cur, plane, self._sigma)
+            info, grad = pose_normal_equations(R, T, m_ref, m_cur, plane, self._sigma)
             if self.config.pose_solver == "ippe":
                 break  # IPPE is reported as OpenCV gives it, without our refinement
             delta = np.linalg.solve(info, grad)
-            R, T = _retract_motion(R, T, delta)
+            R, T = retract_motion(R, T, delta)
         R_rc, p_rc = camera_pose_from_motion(R, T)
         covariance = np.linalg.inv(info)
         keyframe: dict[str, np.ndarray] = {}
@@ -361,7 +246,9 @@ class MeasurementFrontEnd:
             keyframe = {
                 "reference_rotation": R_wr,
                 "reference_position": p_wr,
-                "plane_jacobian": _plane_jacobian(R, T, m_ref, m_cur, plane, self._sigma, info),
+                "plane_jacobian": keyframe_plane_jacobian(
+                    R, T, m_ref, m_cur, plane, self._sigma, info
+                ),
             }
         pose = PoseMeasurement(
             R_rc, p_rc, 0.5 * (covariance + covariance.T), reference=ref.index, **keyframe

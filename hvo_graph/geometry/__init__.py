@@ -1,12 +1,14 @@
 """Pure geometry: camera model, rotations, discrete (H_d) and continuous (H_c) homographies.
 
-Every public name of the four modules is re-exported here and imported on
-first use, so ``import hvo_graph.geometry`` does not load OpenCV:
+Every public name of the five modules is re-exported here and imported on
+first use, so ``import hvo_graph.geometry`` does not load OpenCV or GTSAM:
 
 - :mod:`~hvo_graph.geometry.camera`: ``CameraModel`` (pixels <-> normalized m);
 - :mod:`~hvo_graph.geometry.rotation`: ``skew``, the paper's Euler angles;
 - :mod:`~hvo_graph.geometry.discrete`: H_d = R + T n*^T / d* (pose);
-- :mod:`~hvo_graph.geometry.continuous`: H_c = w^ + v n^T / d (velocity).
+- :mod:`~hvo_graph.geometry.continuous`: H_c = w^ + v n^T / d (velocity);
+- :mod:`~hvo_graph.geometry.transfer`: the transfer error of plane points under H_d,
+  its Jacobians and normal equations (the pose refinement and its covariance).
 """
 
 from hvo_graph import _lazy_exports
@@ -56,6 +58,14 @@ __all__, __getattr__, __dir__ = _lazy_exports(
             "velocity_design_matrix",
             "velocity_known_normal",
             "body_twist_from_scene_motion",
+        ),
+        "hvo_graph.geometry.transfer": (
+            "TransferLinearization",
+            "projection_jacobian",
+            "linearize_transfer",
+            "pose_normal_equations",
+            "keyframe_plane_jacobian",
+            "retract_motion",
         ),
     },
 )

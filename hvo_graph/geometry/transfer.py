@@ -1,0 +1,170 @@
+"""Transfer error of plane points under H_d: residuals, Jacobians, normal equations.
+
+The reference frame F* (frame 0 or a keyframe) sees the plane n*^T X* = d*.
+A reference point m*_i (normalized, (3,) with third entry 1) back-projects to
+the plane point X*_i = d* m*_i / (n*^T m*_i); the motion (R, T) of the paper
+(X = R X* + T) transfers it into the current frame, X_i = R X*_i + T, where it
+should project onto the current observation m_i. The transfer residual is
+
+    r_i = m_i[:2] - pi(X_i),   pi(X) = X[:2] / X[2],
+
+and with isotropic noise sigma (normalized units) on both observations its
+covariance is Sigma_i = sigma^2 (I + A_i A_i^T), A_i = d pi(X_i) / d m*_i[:2].
+
+The pose is perturbed on the right of the camera pose T_wc = (R^T, -R^T T),
+T_wc Exp([dtheta; dp]) (GTSAM's retract, tangent order [rot; trans]). The
+weighted Gauss-Newton step on sum_i r_i^T Sigma_i^-1 r_i is the front end's
+refinement of the H_d pose, and its information matrix the pose covariance.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import gtsam
+import numpy as np
+
+from hvo_graph.errors import InputError
+from hvo_graph.geometry.discrete import camera_pose_from_motion
+from hvo_graph.geometry.rotation import skew
+from hvo_graph.types import Plane
+
+
+def projection_jacobian(X: np.ndarray) -> np.ndarray:
+    """(N, 2, 3) Jacobians d pi / d X of pi(X) = X[:2] / X[2] at the points X, (N, 3)."""
+    z = X[:, 2]
+    J = np.zeros((len(X), 2, 3))
+    J[:, 0, 0] = J[:, 1, 1] = 1.0 / z
+    J[:, 0, 2] = -X[:, 0] / z**2
+    J[:, 1, 2] = -X[:, 1] / z**2
+    return J
+
+
+@dataclass(frozen=True)
+class TransferLinearization:
+    """The transfer residuals of N plane points and their whitened Jacobian at (R, T).
+
+    Attributes:
+        depth: (N,) n*^T m*_i.
+        P: (N, 2, 3) d pi / d X at X_i.
+        J: (N, 2, 6) d pi(X_i) / d[dtheta; dp], right perturbation of T_wc.
+        JtW: (N, 6, 2) J_i^T Sigma_i^-1.
+        residual: (N, 2) m_i[:2] - pi(X_i).
+    """
+
+    depth: np.ndarray
+    P: np.ndarray
+    J: np.ndarray
+    JtW: np.ndarray
+    residual: np.ndarray
+
+
+def linearize_transfer(
+    R: np.ndarray,
+    T: np.ndarray,
+    m_ref: np.ndarray,
+    m_cur: np.ndarray,
+    plane: Plane,
+    sigma: float,
+) -> TransferLinearization:
+    """Linearize the transfer residuals of the points m_ref -> m_cur at the motion (R, T).
+
+    Args:
+        R: (3, 3) rotation, reference -> current frame (X = R X* + T).
+        T: (3,) translation, metres.
+        m_ref: (N, 3) normalized reference points m*.
+        m_cur: (N, 3) normalized current points m.
+        plane: n* (required) and d* in the reference frame.
+        sigma: pixel noise in normalized units (pixels / focal length).
+    Raises:
+        InputError: a transferred point with non-positive depth.
+    """
+    n, d = plane.normal, plane.distance
+    depth = m_ref @ n
+    X_star = d * m_ref / depth[:, None]
+    X = X_star @ R.T + T
+    if np.any(X[:, 2] <= 0):
+        raise InputError("points behind the camera: a plane point has non-positive depth")
+    P = projection_jacobian(X)
+    residual = m_cur[:, :2] - X[:, :2] / X[:, 2:3]
+    # dX/d[dtheta, dp] for the right perturbation of T_wc: [X^, -I].
+    dX = np.concatenate(
+        (np.stack([skew(x) for x in X]), np.broadcast_to(-np.eye(3), (len(X), 3, 3))), axis=2
+    )
+    J = P @ dX
+    dXstar = d * (
+        np.eye(3)[None] / depth[:, None, None]
+        - np.einsum("ni,j->nij", m_ref, n) / depth[:, None, None] ** 2
+    )
+    A = P @ R @ dXstar[:, :, :2]  # (N, 2, 2)
+    W = np.linalg.inv(sigma**2 * (np.eye(2)[None] + A @ np.transpose(A, (0, 2, 1))))
+    return TransferLinearization(depth, P, J, np.transpose(J, (0, 2, 1)) @ W, residual)
+
+
+def pose_normal_equations(
+    R: np.ndarray,
+    T: np.ndarray,
+    m_ref: np.ndarray,
+    m_cur: np.ndarray,
+    plane: Plane,
+    sigma: float,
+) -> tuple[np.ndarray, np.ndarray]:
+    """Information matrix and gradient of the weighted transfer error at (R, T).
+
+    Arguments as :func:`linearize_transfer`.
+
+    Returns:
+        (6, 6) information sum_i J_i^T Sigma_i^-1 J_i and (6,) sum_i J_i^T Sigma_i^-1 r_i:
+        the Gauss-Newton step is info^-1 grad, and info^-1 the pose covariance.
+    """
+    lin = linearize_transfer(R, T, m_ref, m_cur, plane, sigma)
+    return np.sum(lin.JtW @ lin.J, axis=0), np.einsum("nij,nj->i", lin.JtW, lin.residual)
+
+
+def keyframe_plane_jacobian(
+    R: np.ndarray,
+    T: np.ndarray,
+    m_ref: np.ndarray,
+    m_cur: np.ndarray,
+    plane: Plane,
+    sigma: float,
+    info: np.ndarray,
+) -> np.ndarray:
+    """(6, 6) d xi_rc / d xi_wr of a refined keyframe-relative pose (implicit function theorem).
+
+    The plane in the keyframe is n_r = R_wr^T n*, d_r = d* - n*^T p_wr; a right perturbation
+    T_wr Exp([phi; rho]) moves it by dn_r = n_r^ phi, dd_r = -n_r^T rho. The transfer
+    residuals r_i = m_i - pi(R X*_i + T), X*_i = d_r m*_i / (n_r^T m*_i), then move by
+    (dr/dpi) dpi, and the Gauss-Newton optimum by info^-1 J^T W (dr/dpi) dpi.
+
+    Args:
+        R, T, m_ref, m_cur, sigma: as :func:`linearize_transfer`, at the refined optimum.
+        plane: (n_r, d_r), the plane in the keyframe.
+        info: (6, 6) information matrix at the optimum (:func:`pose_normal_equations`).
+    """
+    n, d = plane.normal, plane.distance
+    lin = linearize_transfer(R, T, m_ref, m_cur, plane, sigma)
+    depth = lin.depth
+    # dX*/dn and dX*/dd at fixed m*, then through (phi, rho) of T_wr.
+    dXs_dn = -d * np.einsum("ni,nj->nij", m_ref, m_ref) / depth[:, None, None] ** 2
+    dXs_dd = m_ref / depth[:, None]
+    dXs_dxi = np.concatenate(
+        (dXs_dn @ skew(n), -np.einsum("ni,j->nij", dXs_dd, n)), axis=2
+    )  # (N, 3, 6)
+    dr_dxi = -(lin.P @ R @ dXs_dxi)  # (N, 2, 6)
+    rhs = np.sum(lin.JtW @ dr_dxi, axis=0)
+    return np.linalg.solve(info, rhs)
+
+
+def retract_motion(
+    R: np.ndarray, T: np.ndarray, delta: np.ndarray
+) -> tuple[np.ndarray, np.ndarray]:
+    """The motion (R, T) = T_cw after the right perturbation T_wc Exp(delta), delta (6,).
+
+    Returns:
+        (3, 3) R and (3,) T of the perturbed pose.
+    """
+    R_wc, p_wc = camera_pose_from_motion(R, T)
+    pose = gtsam.Pose3(gtsam.Rot3(R_wc), p_wc).retract(delta)
+    R_new = pose.rotation().matrix().T
+    return R_new, -R_new @ pose.translation()
