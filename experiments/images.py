@@ -11,7 +11,7 @@ reference to keyframes. Pipeline per seed:
    :func:`hvo_graph.simulation.integrate_poses`;
 2. images: :func:`hvo_graph.render.render_plane_images` with a seeded texture
    and seeded Gaussian image noise (:data:`IMAGE_NOISE` gray levels);
-3. tracks: :func:`hvo_graph.tracking.track_images` (OpenCV KLT);
+3. tracks: :func:`hvo_graph.frontend.tracking.track_images` (OpenCV KLT);
 4. measurements: :func:`hvo_graph.frontend.measure_sequence` (RANSAC 2 px,
    pixel_sigma :data:`PIXEL_SIGMA`, keyframes when the reference points leave);
 5. estimators (:data:`METHODS`): the raw measurements, the paper's Kalman
@@ -69,6 +69,7 @@ from hvo_graph.experiment import (
     write_text_atomic,
 )
 from hvo_graph.frontend import FrontEndConfig, measure_sequence
+from hvo_graph.frontend.tracking import track_images
 from hvo_graph.geometry.camera import CameraModel
 from hvo_graph.geometry.rotation import rotation_to_euler
 from hvo_graph.render import make_texture, render_plane_images
@@ -80,7 +81,6 @@ from hvo_graph.simulation import (
     paper_scenario,
 )
 from hvo_graph.stats import MeanCI, mean_ci
-from hvo_graph.tracking import track_images
 from hvo_graph.types import FrameMeasurement, FrameObservations, Plane, Trajectory
 
 #: The repository (outputs default to its docs/ folder, wherever the script is run from).

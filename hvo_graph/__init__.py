@@ -5,13 +5,22 @@ The main names of every layer are available from the package itself
 imported on first use (PEP 562 module ``__getattr__``), so ``import hvo_graph``
 stays light: GTSAM, OpenCV and matplotlib load only when something that needs
 them is used. The full API, layer by layer, is in docs/api.md.
+
+Modules that moved keep their old import path for one release
+(``hvo_graph.simulation`` and others, :data:`_MOVED`): a name read from an old
+path comes from its new module, with a DeprecationWarning naming that module.
 """
 
 from __future__ import annotations
 
 import importlib
+import importlib.abc
+import importlib.machinery
+import importlib.util
 import sys
-from collections.abc import Callable
+import warnings
+from collections.abc import Callable, Sequence
+from types import ModuleType
 from typing import Any
 
 __version__ = "0.1.0"
@@ -30,8 +39,13 @@ _EXPORTS: dict[str, tuple[str, ...]] = {
     ),
     "hvo_graph.geometry.camera": ("CameraModel",),
     "hvo_graph.render": ("render_plane_images",),
-    "hvo_graph.tracking": ("TrackerConfig", "FeatureTracker", "track_images", "tracks_from_images"),
-    "hvo_graph.frontend": ("FrontEndConfig", "MeasurementFrontEnd", "measure_sequence"),
+    "hvo_graph.frontend.tracking": (
+        "TrackerConfig",
+        "FeatureTracker",
+        "track_images",
+        "tracks_from_images",
+    ),
+    "hvo_graph.frontend.measure": ("FrontEndConfig", "MeasurementFrontEnd", "measure_sequence"),
     "hvo_graph.estimators.base": ("Estimator",),
     "hvo_graph.estimators.measurements": ("RawMeasurements",),
     "hvo_graph.estimators.kalman": ("KalmanBaseline",),
@@ -78,6 +92,8 @@ def _lazy_exports(
     def __getattr__(name: str) -> Any:
         module = lazy.get(name)
         if module is None:
+            if f"{package}.{name}" in _MOVED:  # e.g. hvo_graph.simulation without an import
+                return importlib.import_module(f"{package}.{name}")
             raise AttributeError(f"module {package!r} has no attribute {name!r}")
         value = getattr(importlib.import_module(module), name)
         setattr(sys.modules[package], name, value)
@@ -88,6 +104,71 @@ def _lazy_exports(
 
     return list(lazy), __getattr__, __dir__
 
+
+#: Old module path -> the modules its names moved to (searched in order). Kept for one
+#: release; docs/api.md lists the moves.
+_MOVED: dict[str, tuple[str, ...]] = {
+    "hvo_graph.tracking": ("hvo_graph.frontend.tracking", "hvo_graph.io.images"),
+}
+
+
+def _defined_names(module: ModuleType) -> set[str]:
+    """Public names a module defines itself (not the ones it imports)."""
+    return {
+        name
+        for name, value in vars(module).items()
+        if not name.startswith("_")
+        and not isinstance(value, ModuleType)
+        and getattr(value, "__module__", module.__name__) == module.__name__
+    }
+
+
+class _MovedModule(ModuleType):
+    """An old module path: each public name resolves from the module it moved to."""
+
+    def __init__(self, name: str, targets: Sequence[str]) -> None:
+        super().__init__(name, f"Moved: import from {', '.join(targets)}.")
+        self.__targets = tuple(targets)
+
+    def __getattr__(self, name: str) -> Any:
+        modules = [importlib.import_module(target) for target in self.__targets]
+        # The module that defines the name first, else one that imports it.
+        home = next((m for m in modules if name in _defined_names(m)), None)
+        home = home or next(
+            (m for m in modules if not name.startswith("_") and name in vars(m)), None
+        )
+        if home is None:
+            raise AttributeError(f"module {self.__name__!r} has no attribute {name!r}")
+        warnings.warn(
+            f"{self.__name__}.{name} moved to {home.__name__}.{name}; the old path "
+            "will be removed in the next release",
+            DeprecationWarning,
+            stacklevel=2,
+        )
+        return getattr(home, name)
+
+    def __dir__(self) -> list[str]:
+        modules = [importlib.import_module(target) for target in self.__targets]
+        return sorted(set().union(*(_defined_names(m) for m in modules)))
+
+
+class _MovedFinder(importlib.abc.MetaPathFinder, importlib.abc.Loader):
+    """Makes ``import hvo_graph.<old path>`` give a :class:`_MovedModule`."""
+
+    def find_spec(
+        self, fullname: str, path: Sequence[str] | None, target: ModuleType | None = None
+    ) -> importlib.machinery.ModuleSpec | None:
+        return importlib.util.spec_from_loader(fullname, self) if fullname in _MOVED else None
+
+    def create_module(self, spec: importlib.machinery.ModuleSpec) -> ModuleType:
+        return _MovedModule(spec.name, _MOVED[spec.name])
+
+    def exec_module(self, module: ModuleType) -> None:
+        """Nothing to run: the names resolve on first access."""
+
+
+if not any(isinstance(finder, _MovedFinder) for finder in sys.meta_path):
+    sys.meta_path.append(_MovedFinder())
 
 _names, __getattr__, __dir__ = _lazy_exports(__name__, _EXPORTS)
 __all__ = ["__version__", *_names]

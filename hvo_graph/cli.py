@@ -238,7 +238,7 @@ def _estimate(args: argparse.Namespace) -> int:
 
 
 def _track_images(args: argparse.Namespace, camera: CameraModel) -> list[FrameObservations]:
-    from hvo_graph.tracking import TrackerConfig, tracks_from_images
+    from hvo_graph.frontend.tracking import TrackerConfig, tracks_from_images
 
     config = (
         TrackerConfig()

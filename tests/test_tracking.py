@@ -19,14 +19,10 @@ import pytest
 
 from hvo_graph.errors import InputError
 from hvo_graph.frontend import measure_sequence
+from hvo_graph.frontend.tracking import TrackerConfig, track_images, tracks_from_images
 from hvo_graph.geometry.camera import CameraModel
+from hvo_graph.io.images import load_image_sequence
 from hvo_graph.render import make_texture, render_plane_images
-from hvo_graph.tracking import (
-    TrackerConfig,
-    load_image_sequence,
-    track_images,
-    tracks_from_images,
-)
 from hvo_graph.types import FrameObservations, Plane
 
 CAMERA = CameraModel(fx=310.0, fy=295.0, cx=158.3, cy=121.7, width=320, height=240)

@@ -3,7 +3,8 @@
 - :mod:`~hvo_graph.io.config`: the camera and scene YAML;
 - :mod:`~hvo_graph.io.tracks`: feature tracks, ``frame,t,id,u,v``;
 - :mod:`~hvo_graph.io.trajectory`: TUM poses, ``velocity.csv``, ``covariance.csv``
-  and the estimate / ground-truth folders.
+  and the estimate / ground-truth folders;
+- :mod:`~hvo_graph.io.images`: image folders (with ``times.txt``) and videos.
 
 The readers and writers are re-exported here and imported on first use.
 """
@@ -26,6 +27,12 @@ __all__, __getattr__, __dir__ = _lazy_exports(
             "write_estimate_dir",
             "read_groundtruth_dir",
             "write_groundtruth_dir",
+        ),
+        "hvo_graph.io.images": (
+            "ImageSequence",
+            "as_gray_image",
+            "read_times",
+            "load_image_sequence",
         ),
     },
 )

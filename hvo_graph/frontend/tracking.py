@@ -1,5 +1,8 @@
 """Image front end: image sequences -> feature tracks (the contract's tracks form).
 
+Images come from arrays or from disk (:mod:`hvo_graph.io.images` reads image
+folders and videos).
+
 The paper's future work (NOTES section 7) is running on real images with fast
 feature detection and tracking. This module does that with OpenCV's KLT
 tracker:
@@ -24,11 +27,10 @@ tracker:
   id never comes back.
 
 Tracks are raw (distorted) pixels, as in tracks.csv: undistortion belongs to
-the measurement front end (:mod:`hvo_graph.frontend`), which turns these
+the measurement front end (:mod:`hvo_graph.frontend.measure`), which turns these
 tracks into pose (H_d) and velocity (H_c) measurements::
 
-    from hvo_graph.frontend import measure_sequence
-    from hvo_graph.tracking import tracks_from_images
+    from hvo_graph.frontend import measure_sequence, tracks_from_images
 
     tracks = tracks_from_images("images/", camera)
     frames = measure_sequence(tracks, camera, plane)
@@ -42,8 +44,7 @@ for poses as soon as a keyframe that sees them is taken, and for the velocity
 
 from __future__ import annotations
 
-import re
-from collections.abc import Iterable, Iterator, Sequence
+from collections.abc import Iterable, Sequence
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -52,14 +53,9 @@ import numpy as np
 
 from hvo_graph.errors import InputError, as_integer, as_number
 from hvo_graph.geometry.camera import CameraModel
+from hvo_graph.io.images import as_gray_image, load_image_sequence
 from hvo_graph.types import FrameObservations
 
-#: File name endings read as images (case-insensitive).
-IMAGE_EXTENSIONS = (".png", ".jpg", ".jpeg", ".bmp", ".tif", ".tiff")
-#: Optional timestamp file inside an image directory: one time (seconds) per image.
-TIMES_FILE = "times.txt"
-#: Frame rate assumed for an image directory without times.txt.
-DEFAULT_FPS = 30.0
 #: Fewest tracks of one first-sight frame to fit their own re-alignment homography.
 _MIN_GROUP_FIT = 8
 
@@ -357,42 +353,6 @@ def _undistorted_pixels(camera: CameraModel, uv: np.ndarray) -> np.ndarray:
     return (m @ camera.K.T)[:, :2]
 
 
-def as_gray_image(image: object, name: str, camera: CameraModel | None = None) -> np.ndarray:
-    """Return ``image`` as a (H, W) uint8 gray image, or raise InputError.
-
-    Args:
-        image: (H, W), (H, W, 1), (H, W, 3) BGR or (H, W, 4) BGRA array, uint8
-            or uint16 (scaled to 8 bits).
-        name: how the error message names the image.
-        camera: when given, the image must be camera.width x camera.height.
-    """
-    if not isinstance(image, np.ndarray):
-        raise InputError(f"{name}: expected an image array, got {type(image).__name__}")
-    a = image
-    if a.ndim == 3 and a.shape[2] == 1:
-        a = a[:, :, 0]
-    if a.ndim not in (2, 3) or (a.ndim == 3 and a.shape[2] not in (3, 4)):
-        raise InputError(
-            f"{name}: expected a (H, W) gray or (H, W, 3) BGR image, got shape {image.shape}"
-        )
-    if a.dtype == np.uint16:
-        a = np.rint(a / 257.0).astype(np.uint8)
-    elif a.dtype != np.uint8:
-        raise InputError(
-            f"{name}: expected uint8 or uint16 pixels, got {a.dtype} "
-            "(scale floats to 0..255 and convert with .astype(np.uint8))"
-        )
-    if a.ndim == 3:
-        a = cv2.cvtColor(a, cv2.COLOR_BGR2GRAY if a.shape[2] == 3 else cv2.COLOR_BGRA2GRAY)
-    if camera is not None and a.shape != (camera.height, camera.width):
-        raise InputError(
-            f"{name}: image size {a.shape[1]}x{a.shape[0]} does not match the camera's "
-            f"{camera.width}x{camera.height} (camera.width x camera.height)"
-        )
-    # A copy: the tracker keeps images, and callers may reuse their buffers.
-    return np.array(a, order="C", copy=True) if a is image else np.ascontiguousarray(a)
-
-
 def track_images(
     images: Iterable[np.ndarray],
     times: Sequence[float],
@@ -404,7 +364,7 @@ def track_images(
     Args:
         images: K images in time order, (H, W) gray or (H, W, 3) BGR, uint8 or
             uint16, each camera.width x camera.height; any iterable (an
-            :class:`ImageSequence` reads files lazily).
+            :class:`~hvo_graph.io.images.ImageSequence` reads files lazily).
         times: (K,) timestamps, seconds, strictly increasing.
         camera: the calibrated camera.
         config: tracker settings.
@@ -432,201 +392,6 @@ def track_images(
     if len(out) != len(t):
         raise InputError(f"images: {len(out)} images for {len(t)} times")
     return out
-
-
-class ImageSequence:
-    """Frames read lazily from disk, gray uint8, in time order.
-
-    Iterate to read them; ``len()`` is the number of frames and ``names[k]``
-    names frame k in error messages (its file, or the video and frame number).
-    Iterating raises InputError for an unreadable frame or one whose size
-    differs from the first.
-    """
-
-    def __init__(self, names: list[str], width: int, height: int):
-        self.names = names
-        self.width = width
-        self.height = height
-
-    def __len__(self) -> int:
-        return len(self.names)
-
-    def __iter__(self) -> Iterator[np.ndarray]:
-        raise NotImplementedError
-
-    def _check_size(self, image: np.ndarray, name: str) -> np.ndarray:
-        if image.shape[:2] != (self.height, self.width):
-            raise InputError(
-                f"{name}: image size {image.shape[1]}x{image.shape[0]} differs from the first "
-                f"image's {self.width}x{self.height}"
-            )
-        return image
-
-
-class _DirectoryImages(ImageSequence):
-    def __init__(self, files: list[Path]):
-        self.files = files
-        first = _read_image(files[0])
-        super().__init__([str(f) for f in files], first.shape[1], first.shape[0])
-
-    def __getitem__(self, k: int) -> np.ndarray:
-        return self._check_size(_read_image(self.files[k]), self.names[k])
-
-    def __iter__(self) -> Iterator[np.ndarray]:
-        for k in range(len(self.files)):
-            yield self[k]
-
-
-class _VideoFrames(ImageSequence):
-    def __init__(self, path: Path, count: int, width: int, height: int):
-        self.path = path
-        super().__init__([f"{path} frame {k}" for k in range(count)], width, height)
-
-    def __iter__(self) -> Iterator[np.ndarray]:
-        capture = cv2.VideoCapture(str(self.path))
-        try:
-            for name in self.names:
-                ok, frame = capture.read()
-                if not ok:
-                    raise InputError(f"{name}: cannot decode this frame of the video")
-                yield self._check_size(cv2.cvtColor(frame, cv2.COLOR_BGR2GRAY), name)
-        finally:
-            capture.release()
-
-
-def _read_image(path: Path) -> np.ndarray:
-    try:
-        data = np.fromfile(path, dtype=np.uint8)
-    except OSError as exc:
-        raise InputError(f"{path}: cannot read the file ({exc.strerror})") from None
-    image = cv2.imdecode(data, cv2.IMREAD_GRAYSCALE) if data.size else None
-    if image is None:
-        raise InputError(f"{path}: cannot read the image (not a valid image file)")
-    return image
-
-
-def _natural_key(path: Path) -> list[object]:
-    """Sort key comparing digit runs by value: frame2.png before frame10.png."""
-    return [int(s) if s.isdigit() else s for s in re.split(r"(\d+)", path.name)]
-
-
-def read_times(path: str | Path, count: int) -> list[float]:
-    """Read a timestamp file: one time in seconds per line, strictly increasing.
-
-    Blank lines and lines starting with '#' are skipped.
-
-    Args:
-        path: the file (e.g. ``DIR/times.txt``).
-        count: the number of images the times belong to.
-    Returns:
-        ``count`` times, seconds.
-    """
-    path = Path(path)
-    try:
-        lines = path.read_text().splitlines()
-    except (OSError, UnicodeDecodeError) as exc:
-        raise InputError(f"{path}: cannot read the file ({exc})") from None
-    times: list[float] = []
-    for lineno, line in enumerate(lines, start=1):
-        text = line.strip()
-        if not text or text.startswith("#"):
-            continue
-        try:
-            value = float(text)
-        except ValueError:
-            raise InputError(
-                f"{path}:{lineno}: expected one time in seconds, got {text!r}"
-            ) from None
-        if not np.isfinite(value):
-            raise InputError(f"{path}:{lineno}: expected a finite time, got {text!r}")
-        if times and not value > times[-1]:
-            raise InputError(
-                f"{path}:{lineno}: time {value} does not increase (previous {times[-1]})"
-            )
-        times.append(value)
-    if len(times) != count:
-        raise InputError(f"{path}: {len(times)} times for {count} images; expected one per image")
-    return times
-
-
-def load_image_sequence(
-    path: str | Path, *, fps: float | None = None, camera: CameraModel | None = None
-) -> tuple[ImageSequence, list[float]]:
-    """Open a directory of images or a video file, with timestamps.
-
-    A directory: every file ending in .png, .jpg, .jpeg, .bmp, .tif or .tiff
-    (any case), sorted by file name with digit runs compared by value
-    (frame2 before frame10; zero-padded names sort as usual). Timestamps come
-    from ``PATH/times.txt`` when present (see :func:`read_times`; ``fps``
-    must then be None), else t_k = k / fps with fps defaulting to 30.
-
-    A video file (anything ``cv2.VideoCapture`` decodes): t_k = k / fps, fps
-    from the argument when given, else from the file.
-
-    Args:
-        path: the directory or video file.
-        fps: frames per second, > 0.
-        camera: when given, the first image must be camera.width x camera.height.
-    Returns:
-        The frames (read lazily; gray uint8) and their K times in seconds.
-    """
-    path = Path(path)
-    if fps is not None:
-        as_number(fps, "fps", above=0.0, what="a number")
-    if not path.exists():
-        raise InputError(f"{path}: no such directory or video file")
-    if path.is_dir():
-        files = sorted(
-            (f for f in path.iterdir() if f.suffix.lower() in IMAGE_EXTENSIONS and f.is_file()),
-            key=_natural_key,
-        )
-        if not files:
-            raise InputError(
-                f"{path}: no images in the directory (expected files ending in "
-                f"{', '.join(IMAGE_EXTENSIONS)})"
-            )
-        frames: ImageSequence = _DirectoryImages(files)
-        times_file = path / TIMES_FILE
-        if times_file.exists():
-            if fps is not None:
-                raise InputError(f"fps: {times_file} already gives the timestamps; leave fps unset")
-            times = read_times(times_file, len(files))
-        else:
-            rate = DEFAULT_FPS if fps is None else fps
-            times = [k / rate for k in range(len(files))]
-    elif path.suffix.lower() in IMAGE_EXTENSIONS:
-        raise InputError(f"{path}: a single image; expected a directory of images or a video file")
-    else:
-        frames, rate = _open_video(path, fps)
-        times = [k / rate for k in range(len(frames))]
-    if camera is not None and (frames.width, frames.height) != (camera.width, camera.height):
-        raise InputError(
-            f"{frames.names[0]}: image size {frames.width}x{frames.height} does not match the "
-            f"camera's {camera.width}x{camera.height} (camera.width x camera.height)"
-        )
-    return frames, times
-
-
-def _open_video(path: Path, fps: float | None) -> tuple[ImageSequence, float]:
-    capture = cv2.VideoCapture(str(path))
-    try:
-        if not capture.isOpened():
-            raise InputError(f"{path}: cannot open as a video (nor is it a directory of images)")
-        if fps is None:
-            fps = float(capture.get(cv2.CAP_PROP_FPS))
-            if not (np.isfinite(fps) and fps > 0):
-                raise InputError(f"{path}: the video does not state its frame rate; pass fps")
-        # Count by decoding: CAP_PROP_FRAME_COUNT is an estimate for many containers.
-        ok, frame = capture.read()
-        if not ok:
-            raise InputError(f"{path}: the video has no readable frame")
-        height, width = frame.shape[:2]
-        count = 1
-        while capture.grab():
-            count += 1
-    finally:
-        capture.release()
-    return _VideoFrames(path, count, width, height), float(fps)
 
 
 def tracks_from_images(

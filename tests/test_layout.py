@@ -1,0 +1,35 @@
+"""The package's layout: old import paths that the docs promised still resolve."""
+
+from __future__ import annotations
+
+import importlib
+
+import pytest
+
+import hvo_graph
+
+#: Old path -> {name: new module}, one or more names per moved module.
+MOVED = {
+    "hvo_graph.tracking": {
+        "TrackerConfig": "hvo_graph.frontend.tracking",
+        "track_images": "hvo_graph.frontend.tracking",
+        "tracks_from_images": "hvo_graph.frontend.tracking",
+        "load_image_sequence": "hvo_graph.io.images",
+        "IMAGE_EXTENSIONS": "hvo_graph.io.images",
+    },
+}
+
+
+@pytest.mark.parametrize("old", sorted(MOVED))
+def test_old_import_paths_resolve_with_a_deprecation_warning(old: str) -> None:
+    assert set(hvo_graph._MOVED) == set(MOVED)
+    module = importlib.import_module(old)
+    for name, new in MOVED[old].items():
+        with pytest.warns(DeprecationWarning, match=rf"{old}\.{name} moved to {new}\.{name}"):
+            value = getattr(module, name)
+        assert value is getattr(importlib.import_module(new), name)
+        assert name in dir(module)
+    with pytest.raises(AttributeError, match="has no attribute 'not_a_name'"):
+        module.not_a_name  # noqa: B018
+    # also reachable as an attribute of the package, without an import statement
+    assert getattr(hvo_graph, old.rsplit(".", 1)[1]) is module
