@@ -71,7 +71,7 @@ from hvo_graph.estimators.base import Estimator
 from hvo_graph.experiment import markdown_table, write_text_atomic
 from hvo_graph.frontend import FrontEndConfig, MeasurementFrontEnd
 from hvo_graph.pipeline import make_estimator
-from hvo_graph.simulation import Scenario, paper_scenario, simulate
+from hvo_graph.sim.scenario import Scenario, paper_scenario, simulate
 from hvo_graph.types import FrameMeasurement
 
 #: Components benchmarked, in table order, with their titles.

@@ -52,7 +52,7 @@ from hvo_graph.experiment import (
     summary_row,
     write_text_atomic,
 )
-from hvo_graph.simulation import PAPER_NOISE_VAR, ScenarioConfig, paper_scenario
+from hvo_graph.sim.scenario import PAPER_NOISE_VAR, ScenarioConfig, paper_scenario
 
 DEFAULT_SEEDS = 50
 #: The repository (outputs default to its docs/ folder, wherever the script is run from).

@@ -1,15 +1,15 @@
 """The image path end to end: rendered images -> KLT tracks -> H_d / H_c -> every estimator.
 
-Each seed renders a textured plane (hvo_graph.render) seen by a camera that
+Each seed renders a textured plane (hvo_graph.sim.render) seen by a camera that
 follows the paper's sinusoidal twist pattern with a wider sweep, so that the
 first frame's features leave the view and the front end moves its pose
 reference to keyframes. Pipeline per seed:
 
 1. ground truth: the body twist xi(t) = [w; v] of
-   :func:`hvo_graph.simulation.body_twist` (paper pattern, linear amplitudes
+   :func:`hvo_graph.sim.scenario.body_twist` (paper pattern, linear amplitudes
    :data:`LINEAR_AMPLITUDE`), integrated on SE(3) by
-   :func:`hvo_graph.simulation.integrate_poses`;
-2. images: :func:`hvo_graph.render.render_plane_images` with a seeded texture
+   :func:`hvo_graph.sim.scenario.integrate_poses`;
+2. images: :func:`hvo_graph.sim.render.render_plane_images` with a seeded texture
    and seeded Gaussian image noise (:data:`IMAGE_NOISE` gray levels);
 3. tracks: :func:`hvo_graph.frontend.tracking.track_images` (OpenCV KLT);
 4. measurements: :func:`hvo_graph.frontend.measure_sequence` (RANSAC 2 px,
@@ -72,8 +72,8 @@ from hvo_graph.frontend import FrontEndConfig, measure_sequence
 from hvo_graph.frontend.tracking import track_images
 from hvo_graph.geometry.camera import CameraModel
 from hvo_graph.geometry.rotation import rotation_to_euler
-from hvo_graph.render import make_texture, render_plane_images
-from hvo_graph.simulation import (
+from hvo_graph.sim.render import make_texture, render_plane_images
+from hvo_graph.sim.scenario import (
     ScenarioConfig,
     body_twist,
     default_camera,
@@ -98,7 +98,7 @@ FPS = 30.0
 #: Linear amplitudes A_v (m/s) of the paper's twist pattern (paper: 0.12, -0.10, 0.15). The
 #: camera sweeps 2.5 m along x (peak to peak) at 1.7 to 2.1 m from the plane, so the first
 #: frame's footprint (1.6 m wide) is left behind after about 4.8 s. The angular amplitudes
-#: and all frequencies stay the paper's (hvo_graph.simulation.ScenarioConfig).
+#: and all frequencies stay the paper's (hvo_graph.sim.scenario.ScenarioConfig).
 LINEAR_AMPLITUDE = (0.8, -0.25, 0.15)
 
 #: Standard deviation of the additive image noise, gray levels (of 0..255).
@@ -130,7 +130,7 @@ METHODS: tuple[str, ...] = (
 _CHUNK_FRAMES = 30
 
 #: The procedural texture is this many first-image widths a side, then tiles (texels of
-#: about one pixel at d*: hvo_graph.render.default_texel_size).
+#: about one pixel at d*: hvo_graph.sim.render.default_texel_size).
 _TEXTURE_FOOTPRINTS = 4
 
 TRAJECTORY_FIGSIZE = (11.0, 7.5)  # inches; PNG 1650 x 1125 px at 150 dpi

@@ -1,6 +1,6 @@
 """The paper's Kalman filter on the paper's two simulated runs: RMSE and lag.
 
-Runs the paper's scenario (hvo_graph.simulation.paper_scenario) without noise
+Runs the paper's scenario (hvo_graph.sim.scenario.paper_scenario) without noise
 (paper R_k "paper-noise-free") and with 0.05 px^2 pixel noise (paper R_k
 "paper-noisy"), through the homography front end and the filter
 (hvo_graph.estimators.kalman.KalmanBaseline, default Q_k, random initial state),
@@ -32,7 +32,7 @@ from hvo_graph.estimators.measurements import RawMeasurements
 from hvo_graph.evaluation import error_series, format_table, summarize
 from hvo_graph.frontend import measure_sequence
 from hvo_graph.geometry.rotation import rotation_to_euler
-from hvo_graph.simulation import paper_scenario, simulate
+from hvo_graph.sim.scenario import paper_scenario, simulate
 from hvo_graph.types import Trajectory
 
 MAX_LAG = 45  # frames searched either way (1.5 s; the shortest period is 100 frames)

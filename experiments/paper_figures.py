@@ -4,7 +4,7 @@ Tick, Shen and Gans show, for a noise-free run (Figs. 3-6) and a run with
 0.05 px^2 pixel noise (Figs. 7-10), the estimated camera position, orientation
 (heading), linear velocity and angular velocity against the truth over time
 (paper Section IV; paper/NOTES.md section 6). This script simulates the same
-two runs (hvo_graph.simulation.paper_scenario), measures them with the
+two runs (hvo_graph.sim.scenario.paper_scenario), measures them with the
 homography front end, and draws, per quantity and run, one figure with three
 stacked panels (x, y, z; or roll, pitch, yaw) sharing the time axis:
 
@@ -48,7 +48,7 @@ from hvo_graph.evaluation import error_series, summarize
 from hvo_graph.geometry.rotation import rotation_to_euler
 from hvo_graph.pipeline import make_estimator, measure
 from hvo_graph.plotting import TRUTH_STYLE, figure_style, method_style, new_figure, save_figure
-from hvo_graph.simulation import Scenario, paper_scenario, simulate
+from hvo_graph.sim.scenario import Scenario, paper_scenario, simulate
 from hvo_graph.types import FrameMeasurement, Trajectory
 
 #: Size of the per-quantity figures, inches (PNG: 1350 x 1125 px at FIGURE_DPI = 150).

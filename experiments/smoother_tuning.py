@@ -23,7 +23,7 @@ import numpy as np
 from hvo_graph.estimators.smoother import DEFAULT_ACCELERATION_SIGMA, FactorGraphSmoother
 from hvo_graph.evaluation import error_series, summarize
 from hvo_graph.frontend import measure_sequence
-from hvo_graph.simulation import paper_scenario, simulate
+from hvo_graph.sim.scenario import paper_scenario, simulate
 
 GRID = (0.02, 0.03, 0.05, 0.1, 0.2, 0.4)
 

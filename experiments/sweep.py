@@ -1,6 +1,6 @@
 """Accuracy against pixel noise, frame rate and number of points: smoother vs Kalman vs IPPE.
 
-Three sweeps over the paper's scenario (hvo_graph.simulation.paper_scenario),
+Three sweeps over the paper's scenario (hvo_graph.sim.scenario.paper_scenario),
 each changing one setting and keeping the others at the paper's noisy values
 (pixel noise variance 0.05 px^2, 30 fps, 4 points, 10 s):
 
@@ -52,7 +52,7 @@ from hvo_graph.experiment import (
     run_seeds,
     write_text_atomic,
 )
-from hvo_graph.simulation import PAPER_NOISE_VAR, ScenarioConfig, paper_scenario
+from hvo_graph.sim.scenario import PAPER_NOISE_VAR, ScenarioConfig, paper_scenario
 from hvo_graph.stats import MeanCI
 
 DEFAULT_SEEDS = 10

@@ -38,7 +38,7 @@ _EXPORTS: dict[str, tuple[str, ...]] = {
         "StateEstimate",
     ),
     "hvo_graph.geometry.camera": ("CameraModel",),
-    "hvo_graph.render": ("render_plane_images",),
+    "hvo_graph.sim.render": ("render_plane_images",),
     "hvo_graph.frontend.tracking": (
         "TrackerConfig",
         "FeatureTracker",
@@ -60,7 +60,7 @@ _EXPORTS: dict[str, tuple[str, ...]] = {
         "read_groundtruth_dir",
         "write_groundtruth_dir",
     ),
-    "hvo_graph.simulation": (
+    "hvo_graph.sim.scenario": (
         "ScenarioConfig",
         "Scenario",
         "paper_scenario",
@@ -109,6 +109,8 @@ def _lazy_exports(
 #: release; docs/api.md lists the moves.
 _MOVED: dict[str, tuple[str, ...]] = {
     "hvo_graph.tracking": ("hvo_graph.frontend.tracking", "hvo_graph.io.images"),
+    "hvo_graph.simulation": ("hvo_graph.sim.scenario",),
+    "hvo_graph.render": ("hvo_graph.sim.render",),
 }
 
 

@@ -1,7 +1,7 @@
 """The ``hvo-graph`` command: ``simulate``, ``estimate`` and ``evaluate`` (docs/conventions.md).
 
 A thin layer over the library: it parses arguments, reads the contract's files,
-calls :func:`hvo_graph.simulation.simulate`, :func:`hvo_graph.pipeline.estimate`
+calls :func:`hvo_graph.sim.scenario.simulate`, :func:`hvo_graph.pipeline.estimate`
 or :mod:`hvo_graph.evaluation`, and writes the contract's files. Bad input
 (an :class:`~hvo_graph.errors.InputError`, or a file that cannot be read or
 written) prints one line ``hvo-graph: error: ...`` on stderr and exits with
@@ -172,7 +172,7 @@ def build_parser() -> argparse.ArgumentParser:
 
 
 def _simulate(args: argparse.Namespace) -> int:
-    from hvo_graph.simulation import paper_scenario, simulate, write_scenario
+    from hvo_graph.sim.scenario import paper_scenario, simulate, write_scenario
 
     overrides = {
         "seed": args.seed,

@@ -1,7 +1,7 @@
 """Monte Carlo experiments: one simulated seed through every estimator, and many in parallel.
 
 The library side of ``experiments/compare.py`` and ``experiments/sweep.py``.
-One seed of one scenario (:class:`~hvo_graph.simulation.ScenarioConfig`) is
+One seed of one scenario (:class:`~hvo_graph.sim.scenario.ScenarioConfig`) is
 simulated once and measured once per front-end kind: the homography front end
 (H_d poses, H_c twists) feeds every method except "ippe", which gets OpenCV's
 per-frame ``solvePnP(SOLVEPNP_IPPE)`` poses. Every random source is seeded from
@@ -49,7 +49,7 @@ from hvo_graph.errors import InputError, as_integer, as_number
 from hvo_graph.estimators.base import Estimator
 from hvo_graph.evaluation import ErrorSeries, ErrorSummary, error_series, summarize
 from hvo_graph.io._common import atomic_write_text
-from hvo_graph.simulation import ScenarioConfig, simulate
+from hvo_graph.sim.scenario import ScenarioConfig, simulate
 from hvo_graph.stats import MeanCI, mean_ci
 from hvo_graph.types import Trajectory
 

@@ -16,7 +16,7 @@ from hvo_graph import cli
 from hvo_graph.cli import main
 from hvo_graph.io.config import load_scene
 from hvo_graph.io.tracks import read_tracks
-from hvo_graph.simulation import paper_scenario, simulate
+from hvo_graph.sim.scenario import paper_scenario, simulate
 
 COMMAND = Path(sys.executable).parent / "hvo-graph"
 
@@ -237,8 +237,8 @@ def test_estimate_from_images_end_to_end(tmp_path):
     import cv2
 
     from hvo_graph.io.trajectory import write_groundtruth_dir
-    from hvo_graph.render import render_plane_images
-    from hvo_graph.simulation import paper_scenario, simulate
+    from hvo_graph.sim.render import render_plane_images
+    from hvo_graph.sim.scenario import paper_scenario, simulate
 
     scenario = simulate(paper_scenario(noisy=False, duration=1.0, fps=15.0))
     truth = scenario.groundtruth

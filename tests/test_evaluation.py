@@ -14,7 +14,7 @@ from hvo_graph.evaluation import (
     rotation_angle,
     summarize,
 )
-from hvo_graph.simulation import paper_scenario, simulate
+from hvo_graph.sim.scenario import paper_scenario, simulate
 from hvo_graph.types import Trajectory
 
 

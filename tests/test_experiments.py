@@ -26,7 +26,7 @@ from hvo_graph.experiment import (
 )
 from hvo_graph.pipeline import estimate
 from hvo_graph.plotting import FIGURE_DPI, METHOD_STYLE
-from hvo_graph.simulation import paper_scenario, simulate
+from hvo_graph.sim.scenario import paper_scenario, simulate
 
 TINY = ["--seeds", "2", "--duration", "1.5", "--workers", "1", "--no-progress"]
 T_975_DF1 = 12.706  # textbook t_{0.975, 1}: the CI of a mean of two seeds

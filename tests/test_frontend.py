@@ -1,6 +1,6 @@
 """Front end: tracks -> pose and velocity measurements with covariances.
 
-Ground truth here is built independently of hvo_graph.simulation: plane
+Ground truth here is built independently of hvo_graph.sim.scenario: plane
 points, a constant body twist integrated exactly with gtsam's Expmap, and a
 pinhole projection written out in the test.
 """

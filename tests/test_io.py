@@ -26,7 +26,7 @@ from hvo_graph.io.trajectory import (
     write_tum,
     write_velocity,
 )
-from hvo_graph.simulation import paper_scenario, simulate
+from hvo_graph.sim.scenario import paper_scenario, simulate
 from hvo_graph.types import FrameObservations, Plane, Trajectory
 
 CONTRACT_YAML = """\

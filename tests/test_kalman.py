@@ -531,7 +531,7 @@ def test_measured_r_on_noisy_records_filters_the_noise():
 @pytest.fixture(scope="module")
 def noise_free_run():
     from hvo_graph.frontend import measure_sequence
-    from hvo_graph.simulation import paper_scenario, simulate
+    from hvo_graph.sim.scenario import paper_scenario, simulate
 
     scenario = simulate(paper_scenario(noisy=False))
     # the front end needs a pixel sigma > 0 for its covariances; unused with paper R
@@ -543,7 +543,7 @@ def noise_free_run():
 @pytest.fixture(scope="module")
 def noisy_run():
     from hvo_graph.frontend import measure_sequence
-    from hvo_graph.simulation import paper_scenario, simulate
+    from hvo_graph.sim.scenario import paper_scenario, simulate
 
     scenario = simulate(paper_scenario(noisy=True, seed=0))
     return scenario, measure_sequence(

@@ -17,6 +17,16 @@ MOVED = {
         "load_image_sequence": "hvo_graph.io.images",
         "IMAGE_EXTENSIONS": "hvo_graph.io.images",
     },
+    "hvo_graph.simulation": {
+        "paper_scenario": "hvo_graph.sim.scenario",
+        "simulate": "hvo_graph.sim.scenario",
+        "ScenarioConfig": "hvo_graph.sim.scenario",
+        "PAPER_NOISE_VAR": "hvo_graph.sim.scenario",
+    },
+    "hvo_graph.render": {
+        "render_plane_images": "hvo_graph.sim.render",
+        "make_texture": "hvo_graph.sim.render",
+    },
 }
 
 

@@ -22,7 +22,7 @@ from script_helpers import load_script, png_size
 
 from hvo_graph.errors import InputError
 from hvo_graph.geometry.rotation import euler_to_rotation
-from hvo_graph.simulation import paper_scenario, simulate
+from hvo_graph.sim.scenario import paper_scenario, simulate
 
 paper_figures = load_script("paper_figures")
 benchmark = load_script("benchmark")

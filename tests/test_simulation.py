@@ -8,10 +8,10 @@ import pytest
 
 from hvo_graph.errors import InputError
 from hvo_graph.geometry.camera import CameraModel
-from hvo_graph.simulation import ScenarioConfig, paper_scenario, simulate
+from hvo_graph.sim.scenario import ScenarioConfig, paper_scenario, simulate
 from hvo_graph.types import Plane
 
-# The motion as documented in hvo_graph/simulation.py, written out independently:
+# The motion as documented in hvo_graph/sim/scenario.py, written out independently:
 # each twist component is A sin(2 pi h f0 (t - t0)), twist order [w; v].
 F0, T0 = 0.1, 1.0
 A = np.array([0.0, -0.10, 0.20, 0.12, -0.10, 0.15])

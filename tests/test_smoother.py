@@ -1,7 +1,7 @@
 """The factor-graph smoother (hvo_graph.estimators.smoother).
 
 Independent references: ground truth from the simulation's Magnus integrator
-(hvo_graph.simulation) and from samples of the smoother's own prior (for the
+(hvo_graph.sim.scenario) and from samples of the smoother's own prior (for the
 consistency check); a dense (J^T J)^-1 of the whitened Jacobian assembled here
 with numpy for the marginal covariances; the batch optimum on the data seen so
 far for the fixed-lag values; the front end and the paper's Kalman filter on
@@ -25,7 +25,7 @@ from hvo_graph.estimators.smoother import (
 )
 from hvo_graph.evaluation import error_series, summarize
 from hvo_graph.frontend import measure_sequence
-from hvo_graph.simulation import body_twist, integrate_poses, paper_scenario, simulate
+from hvo_graph.sim.scenario import body_twist, integrate_poses, paper_scenario, simulate
 from hvo_graph.types import FrameMeasurement, PoseMeasurement, Trajectory, VelocityMeasurement
 
 FPS = 30.0

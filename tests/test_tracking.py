@@ -1,9 +1,9 @@
 """Image front end: rendered images -> KLT tracks -> homography measurements.
 
-Ground truth is built here, independently of hvo_graph.simulation: poses from
+Ground truth is built here, independently of hvo_graph.sim.scenario: poses from
 a constant body twist integrated exactly with gtsam's Expmap, the texture
 placement and the pinhole projection written out in the test (the texture
-rule is the one documented in hvo_graph.render), back-projection of pixels
+rule is the one documented in hvo_graph.sim.render), back-projection of pixels
 onto the plane by ray-plane intersection.
 """
 
@@ -22,7 +22,7 @@ from hvo_graph.frontend import measure_sequence
 from hvo_graph.frontend.tracking import TrackerConfig, track_images, tracks_from_images
 from hvo_graph.geometry.camera import CameraModel
 from hvo_graph.io.images import load_image_sequence
-from hvo_graph.render import make_texture, render_plane_images
+from hvo_graph.sim.render import make_texture, render_plane_images
 from hvo_graph.types import FrameObservations, Plane
 
 CAMERA = CameraModel(fx=310.0, fy=295.0, cx=158.3, cy=121.7, width=320, height=240)

@@ -66,6 +66,9 @@ import numpy as np
 
 from hvo_graph.errors import InputError, as_integer, as_number
 from hvo_graph.geometry.camera import CameraModel
+from hvo_graph.io.config import SceneConfig, save_scene
+from hvo_graph.io.tracks import write_tracks
+from hvo_graph.io.trajectory import write_groundtruth_dir
 from hvo_graph.types import FrameObservations, Plane, Trajectory
 
 #: The paper's noisy run: pixel variance 0.05 px^2 (sigma 0.2236 px).
@@ -356,10 +359,6 @@ def simulate(config: ScenarioConfig | None = None) -> Scenario:
 def write_scenario(directory: str | Path, scenario: Scenario) -> None:
     """Write a ``simulate`` folder: camera.yaml (with noise.pixel_sigma), tracks.csv
     (noisy), groundtruth.txt (TUM, T_wc) and groundtruth_velocity.csv. Creates the folder."""
-    from hvo_graph.io.config import SceneConfig, save_scene
-    from hvo_graph.io.tracks import write_tracks
-    from hvo_graph.io.trajectory import write_groundtruth_dir
-
     directory = Path(directory)
     directory.mkdir(parents=True, exist_ok=True)
     save_scene(
