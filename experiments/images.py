@@ -17,7 +17,7 @@ reference to keyframes. Pipeline per seed:
 5. estimators (:data:`METHODS`): the raw measurements, the paper's Kalman
    filter (paper noisy R_k), the Kalman filter with the front end's R_k, the
    ISAM2 smoother (smoothed and online) and the fixed-lag smoother;
-6. errors against the rendering's ground truth (hvo_graph.evaluation) after
+6. errors against the rendering's ground truth (hvo_graph.eval.metrics) after
    the first ``--skip`` seconds, and over the time before and after the first
    keyframe switch.
 
@@ -55,7 +55,8 @@ import numpy as np
 
 from hvo_graph.arguments import add_monte_carlo_options, finite_float, int_at_least
 from hvo_graph.errors import InputError
-from hvo_graph.evaluation import ErrorSeries, ErrorSummary, error_series, summarize
+from hvo_graph.eval.metrics import ErrorSeries, ErrorSummary, error_series, summarize
+from hvo_graph.eval.stats import MeanCI, mean_ci
 from hvo_graph.experiment import (
     METHOD_TITLES,
     QUANTITIES,
@@ -80,7 +81,6 @@ from hvo_graph.sim.scenario import (
     integrate_poses,
     paper_scenario,
 )
-from hvo_graph.stats import MeanCI, mean_ci
 from hvo_graph.types import FrameMeasurement, FrameObservations, Plane, Trajectory
 
 #: The repository (outputs default to its docs/ folder, wherever the script is run from).

@@ -29,7 +29,7 @@ import numpy as np
 
 from hvo_graph.estimators.kalman import DEFAULT_PROCESS_NOISE, KalmanBaseline
 from hvo_graph.estimators.measurements import RawMeasurements
-from hvo_graph.evaluation import error_series, format_table, summarize
+from hvo_graph.eval.metrics import error_series, format_table, summarize
 from hvo_graph.frontend import measure_sequence
 from hvo_graph.geometry.rotation import rotation_to_euler
 from hvo_graph.sim.scenario import paper_scenario, simulate

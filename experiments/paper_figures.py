@@ -16,7 +16,7 @@ stacked panels (x, y, z; or roll, pitch, yaw) sharing the time axis:
 - the raw per-frame measurements from H_d and H_c as faint dots (velocities at
   their mid-interval times).
 
-Legends give each estimate's RMSE after the first second (hvo_graph.evaluation:
+Legends give each estimate's RMSE after the first second (hvo_graph.eval.metrics:
 norm of the position / velocity error, rotation angle for orientation).
 Orientation is shown as the paper's Euler angles, roll r, pitch p, yaw w with
 R_wc = R_y(w) R_x(p) R_z(r) (contract), in degrees; velocities are body-frame
@@ -44,7 +44,7 @@ from matplotlib.figure import Figure
 from matplotlib.lines import Line2D
 
 from hvo_graph.errors import InputError
-from hvo_graph.evaluation import error_series, summarize
+from hvo_graph.eval.metrics import error_series, summarize
 from hvo_graph.geometry.rotation import rotation_to_euler
 from hvo_graph.pipeline import make_estimator, measure
 from hvo_graph.plotting import TRUTH_STYLE, figure_style, method_style, new_figure, save_figure
@@ -69,7 +69,7 @@ class Quantity:
     """One of the paper's plotted quantities.
 
     Attributes:
-        key: file-name part, also the hvo_graph.evaluation error behind the legend's RMSE
+        key: file-name part, also the hvo_graph.eval.metrics error behind the legend's RMSE
             (norm of the position / velocity error, rotation angle for orientation).
         title: what the paper's caption calls it.
         unit: axis unit.
@@ -233,7 +233,7 @@ def measurement_series(
 
 
 def rmse_after_settling(result: RunResult, key: str, quantity: Quantity) -> float | None:
-    """RMSE of one estimate's error norm (hvo_graph.evaluation) after :data:`SETTLE_TIME`."""
+    """RMSE of one estimate's error norm (hvo_graph.eval.metrics) after :data:`SETTLE_TIME`."""
     truth = result.scenario.groundtruth
     series = error_series(result.estimates[key], truth)
     if series.t[-1] < truth.t[0] + SETTLE_TIME:

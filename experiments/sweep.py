@@ -39,6 +39,7 @@ import numpy as np
 
 from hvo_graph.arguments import add_monte_carlo_options, finite_float, int_at_least, names
 from hvo_graph.errors import InputError
+from hvo_graph.eval.stats import MeanCI
 from hvo_graph.experiment import (
     METHOD_LABELS,
     METHOD_TITLES,
@@ -53,7 +54,6 @@ from hvo_graph.experiment import (
     write_text_atomic,
 )
 from hvo_graph.sim.scenario import PAPER_NOISE_VAR, ScenarioConfig, paper_scenario
-from hvo_graph.stats import MeanCI
 
 DEFAULT_SEEDS = 10
 DEFAULT_DURATION = 10.0
@@ -194,10 +194,9 @@ def sweep_csv(
     sweeps: Sequence[Sweep], all_stats: dict[str, SweepStats], methods: Sequence[str]
 ) -> str:
     """One row per (sweep, value, method): seeds, and per quantity RMSE mean, CI half-width."""
-    units = {"m": "m", "deg": "deg", "m/s": "mps", "rad/s": "radps"}
     header = ["sweep", "value", "method", "seeds"]
-    for q, _, u in QUANTITIES:
-        header += [f"{q}_rmse_{units[u]}_mean", f"{q}_rmse_{units[u]}_ci95"]
+    for q in QUANTITIES:
+        header += [f"{q.name}_rmse_{q.slug}_mean", f"{q.name}_rmse_{q.slug}_ci95"]
     rows = []
     for sweep in sweeps:
         for value in sweep.values:

@@ -67,7 +67,7 @@ _EXPORTS: dict[str, tuple[str, ...]] = {
         "simulate",
         "write_scenario",
     ),
-    "hvo_graph.evaluation": (
+    "hvo_graph.eval.metrics": (
         "ErrorSeries",
         "ErrorSummary",
         "error_series",
@@ -111,6 +111,8 @@ _MOVED: dict[str, tuple[str, ...]] = {
     "hvo_graph.tracking": ("hvo_graph.frontend.tracking", "hvo_graph.io.images"),
     "hvo_graph.simulation": ("hvo_graph.sim.scenario",),
     "hvo_graph.render": ("hvo_graph.sim.render",),
+    "hvo_graph.evaluation": ("hvo_graph.eval.metrics",),
+    "hvo_graph.stats": ("hvo_graph.eval.stats",),
 }
 
 

@@ -2,7 +2,7 @@
 
 A thin layer over the library: it parses arguments, reads the contract's files,
 calls :func:`hvo_graph.sim.scenario.simulate`, :func:`hvo_graph.pipeline.estimate`
-or :mod:`hvo_graph.evaluation`, and writes the contract's files. Bad input
+or :mod:`hvo_graph.eval.metrics`, and writes the contract's files. Bad input
 (an :class:`~hvo_graph.errors.InputError`, or a file that cannot be read or
 written) prints one line ``hvo-graph: error: ...`` on stderr and exits with
 status 2, like argparse's own usage errors; never a traceback.
@@ -252,7 +252,7 @@ def _track_images(args: argparse.Namespace, camera: CameraModel) -> list[FrameOb
 
 
 def _evaluate(args: argparse.Namespace) -> int:
-    from hvo_graph.evaluation import error_series, format_table, summarize
+    from hvo_graph.eval.metrics import error_series, format_table, summarize
     from hvo_graph.io.trajectory import read_estimate_dir, read_groundtruth_dir
 
     estimate = read_estimate_dir(args.estimate)

@@ -47,10 +47,16 @@ import numpy as np
 
 from hvo_graph.errors import InputError, as_integer, as_number
 from hvo_graph.estimators.base import Estimator
-from hvo_graph.evaluation import ErrorSeries, ErrorSummary, error_series, summarize
+from hvo_graph.eval.metrics import (
+    QUANTITIES,
+    ErrorSeries,
+    ErrorSummary,
+    error_series,
+    summarize,
+)
+from hvo_graph.eval.stats import MeanCI, mean_ci
 from hvo_graph.io._common import atomic_write_text
 from hvo_graph.sim.scenario import ScenarioConfig, simulate
-from hvo_graph.stats import MeanCI, mean_ci
 from hvo_graph.types import Trajectory
 
 #: Every method an experiment can run, in table order.
@@ -76,14 +82,6 @@ METHOD_TITLES: dict[str, str] = {
     "fixed-lag": "fixed-lag (1 s)",
     "ippe": "IPPE per frame",
 }
-
-#: Error quantities, in table order: (ErrorSummary attribute prefix, title, unit).
-QUANTITIES: tuple[tuple[str, str, str], ...] = (
-    ("position", "position", "m"),
-    ("orientation", "orientation", "deg"),
-    ("linear_velocity", "linear velocity", "m/s"),
-    ("angular_velocity", "angular velocity", "rad/s"),
-)
 
 #: Window of the fixed-lag smoother, seconds.
 FIXED_LAG_SECONDS = 1.0
@@ -619,8 +617,7 @@ def csv_text(header: Sequence[str], rows: Iterable[Sequence[object]]) -> str:
 
 def summary_columns() -> list[str]:
     """CSV column names of an :class:`ErrorSummary`: ``<quantity>_<rmse|max>_<unit>``, frames."""
-    units = {"m": "m", "deg": "deg", "m/s": "mps", "rad/s": "radps"}
-    cols = [f"{q}_{stat}_{units[u]}" for q, _, u in QUANTITIES for stat in ("rmse", "max")]
+    cols = [f"{q.name}_{stat}_{q.slug}" for q in QUANTITIES for stat in ("rmse", "max")]
     return [*cols, "frames"]
 
 

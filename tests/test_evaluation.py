@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 
 from hvo_graph.errors import InputError
-from hvo_graph.evaluation import (
+from hvo_graph.eval.metrics import (
     ErrorSummary,
     error_series,
     format_table,

@@ -15,7 +15,7 @@ import pytest
 from script_helpers import load_script, png_size
 
 from hvo_graph.errors import InputError
-from hvo_graph.evaluation import error_series, summarize
+from hvo_graph.eval.metrics import error_series, summarize
 from hvo_graph.experiment import (
     METHOD_LABELS,
     METHOD_TITLES,

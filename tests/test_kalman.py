@@ -552,7 +552,7 @@ def noisy_run():
 
 
 def test_noise_free_run_converges_from_a_random_start(noise_free_run):
-    from hvo_graph.evaluation import error_series, summarize
+    from hvo_graph.eval.metrics import error_series, summarize
 
     scenario, frames = noise_free_run
     runs = {}
@@ -579,7 +579,7 @@ def test_noise_free_run_converges_from_a_random_start(noise_free_run):
 
 
 def test_noise_free_run_world_frame_velocity_option(noise_free_run):
-    from hvo_graph.evaluation import error_series, summarize
+    from hvo_graph.eval.metrics import error_series, summarize
 
     scenario, frames = noise_free_run
     errs = {}
@@ -592,7 +592,7 @@ def test_noise_free_run_world_frame_velocity_option(noise_free_run):
 
 def test_noisy_run_tracks_with_bounded_rmse(noisy_run):
     from hvo_graph.estimators.measurements import RawMeasurements
-    from hvo_graph.evaluation import error_series, summarize
+    from hvo_graph.eval.metrics import error_series, summarize
 
     scenario, frames = noisy_run
     kf = summarize(
@@ -611,7 +611,7 @@ def test_noisy_run_tracks_with_bounded_rmse(noisy_run):
 
 
 def test_measured_r_preset_on_noisy_run(noisy_run):
-    from hvo_graph.evaluation import error_series, summarize
+    from hvo_graph.eval.metrics import error_series, summarize
 
     scenario, frames = noisy_run
     out = {}

@@ -27,6 +27,17 @@ MOVED = {
         "render_plane_images": "hvo_graph.sim.render",
         "make_texture": "hvo_graph.sim.render",
     },
+    "hvo_graph.evaluation": {
+        "error_series": "hvo_graph.eval.metrics",
+        "summarize": "hvo_graph.eval.metrics",
+        "format_table": "hvo_graph.eval.metrics",
+        "ErrorSummary": "hvo_graph.eval.metrics",
+    },
+    "hvo_graph.stats": {
+        "mean_ci": "hvo_graph.eval.stats",
+        "t_quantile": "hvo_graph.eval.stats",
+        "MeanCI": "hvo_graph.eval.stats",
+    },
 }
 
 

@@ -23,7 +23,7 @@ from hvo_graph.estimators.smoother import (
     FactorGraphSmoother,
     FixedLagSmoother,
 )
-from hvo_graph.evaluation import error_series, summarize
+from hvo_graph.eval.metrics import error_series, summarize
 from hvo_graph.frontend import measure_sequence
 from hvo_graph.sim.scenario import body_twist, integrate_poses, paper_scenario, simulate
 from hvo_graph.types import FrameMeasurement, PoseMeasurement, Trajectory, VelocityMeasurement

@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 
 from hvo_graph.errors import InputError
-from hvo_graph.stats import EXACT_DF_LIMIT, mean_ci, normal_quantile, rmse, t_quantile
+from hvo_graph.eval.stats import EXACT_DF_LIMIT, mean_ci, normal_quantile, rmse, t_quantile
 
 # Student t quantiles as printed in textbook tables (e.g. Montgomery & Runger,
 # Applied Statistics and Probability for Engineers, Table V), 3 decimals.

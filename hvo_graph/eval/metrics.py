@@ -18,6 +18,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
+from typing import NamedTuple
 
 import numpy as np
 
@@ -27,11 +28,41 @@ from hvo_graph.types import Trajectory
 #: Fewer matched timestamps than this fraction of the estimate's frames is an error.
 MIN_MATCHED_FRACTION = 0.5
 
-_QUANTITIES = (
-    ("position", "position_m", "pos [m]"),
-    ("orientation", "orientation_deg", "orient [deg]"),
-    ("linear_velocity", "linear_velocity_mps", "lin vel [m/s]"),
-    ("angular_velocity", "angular_velocity_radps", "ang vel [rad/s]"),
+#: Units as they appear in JSON keys and CSV column names.
+_UNIT_SLUGS = {"m": "m", "deg": "deg", "m/s": "mps", "rad/s": "radps"}
+#: Short names of the quantities in :func:`format_table`.
+_SHORT = {
+    "position": "pos",
+    "orientation": "orient",
+    "linear_velocity": "lin vel",
+    "angular_velocity": "ang vel",
+}
+
+
+class Quantity(NamedTuple):
+    """One error quantity: the :class:`ErrorSeries` attribute, a title and the unit."""
+
+    name: str
+    title: str
+    unit: str
+
+    @property
+    def slug(self) -> str:
+        """The unit in keys and column names: m, deg, mps, radps."""
+        return _UNIT_SLUGS[self.unit]
+
+    @property
+    def key(self) -> str:
+        """``<name>_<slug>``, e.g. "linear_velocity_mps", a key of :meth:`ErrorSummary.as_dict`."""
+        return f"{self.name}_{self.slug}"
+
+
+#: The four errors, in table order.
+QUANTITIES: tuple[Quantity, ...] = (
+    Quantity("position", "position", "m"),
+    Quantity("orientation", "orientation", "deg"),
+    Quantity("linear_velocity", "linear velocity", "m/s"),
+    Quantity("angular_velocity", "angular velocity", "rad/s"),
 )
 
 
@@ -75,9 +106,9 @@ class ErrorSummary:
         """{"position_m": {"rmse", "max"}, "orientation_deg": ..., "linear_velocity_mps": ...,
         "angular_velocity_radps": ..., "frames": K}; velocity entries None when unknown."""
         out: dict[str, object] = {}
-        for attr, key, _ in _QUANTITIES:
-            rmse, peak = getattr(self, f"{attr}_rmse"), getattr(self, f"{attr}_max")
-            out[key] = None if rmse is None else {"rmse": rmse, "max": peak}
+        for q in QUANTITIES:
+            rmse, peak = getattr(self, f"{q.name}_rmse"), getattr(self, f"{q.name}_max")
+            out[q.key] = None if rmse is None else {"rmse": rmse, "max": peak}
         out["frames"] = self.frames
         return out
 
@@ -181,9 +212,9 @@ def summarize(series: ErrorSeries, *, t_start: float | None = None) -> ErrorSumm
             f"(matched frames span {series.t[0]:.6g}..{series.t[-1]:.6g} s)"
         )
     values: dict[str, float | None] = {}
-    for attr, _, _ in _QUANTITIES:
-        e = getattr(series, attr)
-        values[f"{attr}_rmse"], values[f"{attr}_max"] = _stats(None if e is None else e[keep])
+    for q in QUANTITIES:
+        e = getattr(series, q.name)
+        values[f"{q.name}_rmse"], values[f"{q.name}_max"] = _stats(None if e is None else e[keep])
     return ErrorSummary(**values, frames=int(keep.sum()))  # type: ignore[arg-type]
 
 
@@ -194,16 +225,15 @@ def format_table(summaries: dict[str, ErrorSummary]) -> str:
     ang vel RMSE/max [rad/s], frames. Velocity cells are '-' when unknown.
     """
     header = ["method"]
-    for _, _, label in _QUANTITIES:
-        name, unit = label.split(" [")
-        header += [f"{name} RMSE [{unit}", f"{name} max [{unit}"]
+    for q in QUANTITIES:
+        header += [f"{_SHORT[q.name]} RMSE [{q.unit}]", f"{_SHORT[q.name]} max [{q.unit}]"]
     header.append("frames")
     rows = [header]
     for method, s in summaries.items():
         row = [str(method)]
-        for attr, _, _ in _QUANTITIES:
+        for q in QUANTITIES:
             for stat in ("rmse", "max"):
-                value = getattr(s, f"{attr}_{stat}")
+                value = getattr(s, f"{q.name}_{stat}")
                 row.append("-" if value is None else f"{value:.4g}")
         row.append(str(s.frames))
         rows.append(row)
