@@ -27,8 +27,9 @@ import argparse
 
 import numpy as np
 
-from hvo_graph.estimators.kalman import DEFAULT_PROCESS_NOISE, KalmanBaseline
+from hvo_graph.estimators.kalman import KalmanBaseline
 from hvo_graph.estimators.measurements import RawMeasurements
+from hvo_graph.estimators.process_noise import DEFAULT_PROCESS_NOISE
 from hvo_graph.eval.metrics import error_series, format_table, summarize
 from hvo_graph.frontend import measure_sequence
 from hvo_graph.geometry.rotation import rotation_to_euler

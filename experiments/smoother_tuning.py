@@ -20,7 +20,8 @@ import itertools
 
 import numpy as np
 
-from hvo_graph.estimators.smoother import DEFAULT_ACCELERATION_SIGMA, FactorGraphSmoother
+from hvo_graph.estimators.process_noise import DEFAULT_ACCELERATION_SIGMA
+from hvo_graph.estimators.smoother import FactorGraphSmoother
 from hvo_graph.eval.metrics import error_series, summarize
 from hvo_graph.frontend import measure_sequence
 from hvo_graph.sim.scenario import paper_scenario, simulate

@@ -15,7 +15,7 @@ Methods (:data:`METHOD_LABELS`):
 - ``kalman-measured``: the same filter given what the smoother is given: R_k the
   diagonal of the front end's covariances (``r_preset="measured"``), process
   noise equal to the smoother's white-noise acceleration (see
-  :func:`kalman_measured_process_noise`), and the measured body velocity
+  :func:`~hvo_graph.estimators.process_noise.kalman_process_noise`), and the measured body velocity
   rotated into the world frame before integration (``world_frame_velocity``,
   the correct kinematics; the paper's form integrates body v as world v);
 - ``smoother``: ISAM2, the final (smoothed) trajectory;
@@ -47,6 +47,7 @@ import numpy as np
 
 from hvo_graph.errors import InputError, as_integer, as_number
 from hvo_graph.estimators.base import Estimator
+from hvo_graph.estimators.process_noise import DEFAULT_ACCELERATION_SIGMA, kalman_process_noise
 from hvo_graph.eval.metrics import (
     QUANTITIES,
     ErrorSeries,
@@ -119,22 +120,6 @@ def check_methods(methods: Iterable[str]) -> tuple[str, ...]:
     return chosen
 
 
-def kalman_measured_process_noise() -> np.ndarray:
-    """(6,) Q_k scalars of "kalman-measured", matched to the smoother's process model.
-
-    The smoother's twist random walk has spectral density diag(s_w^2 I_3, s_v^2 I_3)
-    (``DEFAULT_ACCELERATION_SIGMA`` = (s_w, s_v)); the filter's pair (i, i+6) has
-    Q[i+6, i+6] = s_i dt, the same white-noise acceleration model. So the filter
-    gets s = (s_v^2, s_v^2, s_v^2, s_w^2, s_w^2, s_w^2) in its order (x, y, z, p, w, r).
-    (The filter pairs Euler angles with body rates, equal to first order near
-    the identity.)
-    """
-    from hvo_graph.estimators.smoother import DEFAULT_ACCELERATION_SIGMA
-
-    s_w, s_v = DEFAULT_ACCELERATION_SIGMA
-    return np.array([s_v**2] * 3 + [s_w**2] * 3)
-
-
 def make_method(label: str, seed: int) -> Estimator:
     """A fresh estimator for ``label`` (except "smoother-online", which reads a "smoother" run).
 
@@ -149,7 +134,7 @@ def make_method(label: str, seed: int) -> Estimator:
 
         return KalmanBaseline(
             r_preset="measured",
-            process_noise=kalman_measured_process_noise(),
+            process_noise=kalman_process_noise(DEFAULT_ACCELERATION_SIGMA),
             seed=seed,
             world_frame_velocity=True,
         )

@@ -34,6 +34,7 @@ import numpy as np
 
 from hvo_graph.errors import InputError, as_covariance, as_integer, as_matrix, as_number, as_vector
 from hvo_graph.estimators.base import Estimator
+from hvo_graph.estimators.process_noise import DEFAULT_PROCESS_NOISE, white_noise_blocks
 from hvo_graph.geometry.rotation import euler_to_rotation, rotation_to_euler, skew, wrap_angle
 from hvo_graph.types import FrameMeasurement, StateEstimate
 
@@ -61,15 +62,6 @@ PAPER_R_NOISY.setflags(write=False)
 #: The R_k presets: the paper's two diagonals, and "measured" (the diagonal of the
 #: front end's per-frame covariances, converted to state coordinates).
 R_PRESETS: tuple[str, ...] = ("paper-noisy", "paper-noise-free", "measured")
-
-#: Default Q_k scalars s_i = (sigma_x, sigma_y, sigma_z, sigma_p, sigma_w, sigma_r): the
-#: spectral densities of the white-noise acceleration driving each pair (i, i+6), in
-#: m^2/s^3 (position pairs) and rad^2/s^3 (angle pairs). Bar-Shalom's rule s = a_max^2 dt
-#: with a_max = 0.3 m/s^2 (rad/s^2), just above the paper scenario's largest linear and
-#: angular accelerations (0.28, 0.25), and dt = 1/30 s: s = 0.09 / 30 = 3e-3 on every pair.
-#: See docs/kalman.md (with the sensitivity of the errors to this choice).
-DEFAULT_PROCESS_NOISE: np.ndarray = np.full(6, 3e-3)
-DEFAULT_PROCESS_NOISE.setflags(write=False)
 
 #: Default P_0: the distribution the random initial state is drawn from (zero mean),
 #: and the initial covariance. Standard deviations 0.5 m, 0.2 rad (11.5 deg),
@@ -169,9 +161,8 @@ def process_covariance(dt: float, s: Sequence[float] | np.ndarray) -> np.ndarray
     s = _check_process_noise(s)
     Q = np.zeros((12, 12))
     i = np.arange(6)
-    Q[i, i] = s * dt**3 / 3.0
-    Q[i, i + 6] = Q[i + 6, i] = s * dt**2 / 2.0
-    Q[i + 6, i + 6] = s * dt
+    Q[i, i], Q[i, i + 6], Q[i + 6, i + 6] = white_noise_blocks(s, dt)
+    Q[i + 6, i] = Q[i, i + 6]
     return Q
 
 

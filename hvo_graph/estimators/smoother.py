@@ -63,6 +63,13 @@ from hvo_graph.estimators.factors import (
     motion_factor,
     replace_keyframe_plane,
 )
+from hvo_graph.estimators.process_noise import (
+    DEFAULT_ACCELERATION_SIGMA,
+    bridge_variance,
+    twist_spectral_density,
+    velocity_variance,
+)
+from hvo_graph.estimators.process_noise import acceleration_sigma as check_acceleration_sigma
 from hvo_graph.types import (
     FrameMeasurement,
     PoseMeasurement,
@@ -96,15 +103,6 @@ ROBUST_LOSSES: tuple[str, ...] = ("huber", "cauchy")
 #: M-estimator to sqrt(e^T Sigma^-1 e)): sqrt of the 95 % quantile of chi^2 with
 #: 6 degrees of freedom, so an inlier 6-vector is down-weighted 5 % of the time.
 DEFAULT_ROBUST_THRESHOLD: float = math.sqrt(12.591587243743977)
-
-#: Default white-noise-acceleration strengths (s_w, s_v): square roots of the
-#: spectral densities q of the angular (rad s^-3/2) and linear (m s^-3/2)
-#: acceleration; over dt the twist random walk has standard deviation s sqrt(dt).
-#: q = a_max^2 dt (Bar-Shalom's rule) with a_max = 0.3 m/s^2 (rad/s^2), just above
-#: the paper scenario's largest accelerations, and dt = 1/30 s: q = 3e-3, the same
-#: process noise as the Kalman baseline's default. Checked on 20 seeds of the
-#: paper's noisy run (docs/smoother.md, "Parameters").
-DEFAULT_ACCELERATION_SIGMA: tuple[float, float] = (math.sqrt(3e-3), math.sqrt(3e-3))
 
 #: Standard deviation (rad, m) of the prior X(k0) = I that defines the world frame.
 DEFAULT_WORLD_SIGMA: float = 1e-6
@@ -292,17 +290,9 @@ class FactorGraphSmoother(Estimator):
         self.solver = solver
         self.name = SOLVERS[solver]
         self.lag = as_number(lag, "lag", above=0.0)
-        sigma = np.atleast_1d(np.asarray(acceleration_sigma, dtype=float))
-        if sigma.shape == (1,):
-            sigma = np.repeat(sigma, 2)
-        if sigma.shape != (2,) or not np.all(np.isfinite(sigma)) or np.any(sigma <= 0):
-            raise InputError(
-                "acceleration_sigma: expected one or two finite numbers > 0 (angular, linear), "
-                f"got {acceleration_sigma!r}"
-            )
-        self.acceleration_sigma = (float(sigma[0]), float(sigma[1]))
+        self.acceleration_sigma = check_acceleration_sigma(acceleration_sigma)
         #: diag(Q): white-noise-acceleration spectral densities, [rot x3; trans x3].
-        self._q = np.repeat(sigma**2, 3)
+        self._q = twist_spectral_density(self.acceleration_sigma)
         if robust is not None and robust not in ROBUST_LOSSES:
             raise InputError(
                 f"robust: expected None or one of {', '.join(ROBUST_LOSSES)}, got {robust!r}"
@@ -378,8 +368,8 @@ class FactorGraphSmoother(Estimator):
             if len(self._noise_cache) > 64:  # irregular frame times: keep the cache small
                 self._noise_cache.clear()
             cached = (
-                gtsam.noiseModel.Diagonal.Sigmas(np.sqrt(self._q * dt**3 / 12.0)),
-                gtsam.noiseModel.Diagonal.Sigmas(np.sqrt(self._q * dt)),
+                gtsam.noiseModel.Diagonal.Sigmas(np.sqrt(bridge_variance(self._q, dt))),
+                gtsam.noiseModel.Diagonal.Sigmas(np.sqrt(velocity_variance(self._q, dt))),
             )
             self._noise_cache[dt] = cached
         return cached
