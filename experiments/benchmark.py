@@ -68,9 +68,9 @@ import numpy as np
 
 from hvo_graph.errors import InputError
 from hvo_graph.estimators.base import Estimator
-from hvo_graph.experiment import markdown_table, write_text_atomic
 from hvo_graph.frontend import FrontEndConfig, MeasurementFrontEnd
 from hvo_graph.pipeline import make_estimator
+from hvo_graph.report.tables import markdown_table, write_text_atomic
 from hvo_graph.sim.scenario import Scenario, paper_scenario, simulate
 from hvo_graph.types import FrameMeasurement
 

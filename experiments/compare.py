@@ -2,7 +2,7 @@
 
 Each seed simulates the scenario once (pixel noise, and the Kalman filters'
 random initial state, drawn from the seed), measures it once per front end and
-runs every method on the same measurements (hvo_graph.experiment.run_seed).
+runs every method on the same measurements (hvo_graph.montecarlo.run_seed).
 RMSE and max of position (m), orientation (deg), linear velocity (m/s) and
 angular velocity (rad/s) are computed after the first ``--skip`` seconds; the
 tables give their mean over seeds with a Student-t 95 % confidence interval,
@@ -32,21 +32,22 @@ import numpy as np
 
 from hvo_graph.arguments import add_monte_carlo_options, finite_float, int_at_least, names
 from hvo_graph.errors import InputError
-from hvo_graph.experiment import (
-    METHOD_LABELS,
-    METHOD_TITLES,
-    QUANTITIES,
+from hvo_graph.estimators.registry import METHOD_LABELS, METHOD_TITLES
+from hvo_graph.eval.metrics import QUANTITIES
+from hvo_graph.montecarlo import (
     SeedResult,
-    csv_text,
-    describe_seeds,
-    format_ci,
-    format_value,
-    markdown_table,
     mean_error_over_time,
     method_statistics,
     metric_values,
     ratio_statistics,
     run_seeds,
+)
+from hvo_graph.report.tables import (
+    csv_text,
+    describe_seeds,
+    format_ci,
+    format_value,
+    markdown_table,
     software_versions,
     summary_columns,
     summary_row,
@@ -321,7 +322,13 @@ def plot_error_over_time(
     results: Sequence[SeedResult], methods: Sequence[str], path: Path, *, skip: float
 ) -> list[Path]:
     """Four panels: mean over seeds of each method's per-frame error against time (log y)."""
-    from hvo_graph.plotting import figure_style, log_axis, method_style, new_figure, save_figure
+    from hvo_graph.report.plotting import (
+        figure_style,
+        log_axis,
+        method_style,
+        new_figure,
+        save_figure,
+    )
 
     with figure_style():
         fig, axes = new_figure(*ERROR_FIGSIZE, nrows=2, ncols=2, sharex=True)
@@ -360,7 +367,13 @@ def plot_error_distribution(
     results: Sequence[SeedResult], methods: Sequence[str], path: Path
 ) -> list[Path]:
     """Four panels: box plots of the per-seed RMSE of each method (log y)."""
-    from hvo_graph.plotting import figure_style, log_axis, method_style, new_figure, save_figure
+    from hvo_graph.report.plotting import (
+        figure_style,
+        log_axis,
+        method_style,
+        new_figure,
+        save_figure,
+    )
 
     with figure_style():
         fig, axes = new_figure(*DISTRIBUTION_FIGSIZE, nrows=2, ncols=2, sharex=True)

@@ -24,7 +24,7 @@ matplotlib.use("Agg")
 import matplotlib.pyplot as plt
 from matplotlib.lines import Line2D
 
-from hvo_graph.plotting import figure_style, save_figure
+from hvo_graph.report.plotting import figure_style, save_figure
 
 ROOT = Path(__file__).resolve().parents[1]
 

@@ -55,24 +55,23 @@ import numpy as np
 
 from hvo_graph.arguments import add_monte_carlo_options, finite_float, int_at_least
 from hvo_graph.errors import InputError
-from hvo_graph.eval.metrics import ErrorSeries, ErrorSummary, error_series, summarize
+from hvo_graph.estimators.registry import METHOD_TITLES
+from hvo_graph.eval.metrics import QUANTITIES, ErrorSeries, ErrorSummary, error_series, summarize
 from hvo_graph.eval.stats import MeanCI, mean_ci
-from hvo_graph.experiment import (
-    METHOD_TITLES,
-    QUANTITIES,
-    ProgressBar,
-    describe_seeds,
-    format_ci,
-    format_value,
-    make_method,
-    markdown_table,
-    software_versions,
-    write_text_atomic,
-)
 from hvo_graph.frontend import FrontEndConfig, measure_sequence
 from hvo_graph.frontend.tracking import track_images
 from hvo_graph.geometry.camera import CameraModel
 from hvo_graph.geometry.rotation import rotation_to_euler
+from hvo_graph.montecarlo import MethodRuns
+from hvo_graph.report.progress import ProgressBar
+from hvo_graph.report.tables import (
+    describe_seeds,
+    format_ci,
+    format_value,
+    markdown_table,
+    software_versions,
+    write_text_atomic,
+)
 from hvo_graph.sim.render import make_texture, render_plane_images
 from hvo_graph.sim.scenario import (
     ScenarioConfig,
@@ -116,7 +115,7 @@ PIXEL_SIGMA = 0.02
 #: RANSAC threshold of the front end's H_d, pixels.
 RANSAC_THRESHOLD_PX = 2.0
 
-#: Methods, in table order (labels of hvo_graph.experiment.METHOD_LABELS).
+#: Methods, in table order (names of hvo_graph.estimators.registry.METHODS).
 METHODS: tuple[str, ...] = (
     "measurements",
     "kalman",
@@ -397,18 +396,14 @@ def _segment_rmse(series: ErrorSeries, start: float, stop: float) -> float | Non
 def run_methods(frames: Sequence[FrameMeasurement], seed: int) -> dict[str, Trajectory]:
     """Every method of :data:`METHODS` on the same measurements (one ISAM2 run for both
     smoother rows)."""
+    runs = MethodRuns(lambda _solver: frames, seed)
     out: dict[str, Trajectory] = {}
     for label in METHODS:
-        if label == "smoother-online":
-            continue
         try:
-            estimator = make_method(label, seed)
-            out[label] = estimator.run(frames)
+            out[label] = runs.trajectory(label)
         except InputError as exc:
             raise InputError(f"seed {seed}, method {label}: {exc}") from exc
-        if label == "smoother":
-            out["smoother-online"] = estimator.online_trajectory()
-    return {label: out[label] for label in METHODS}
+    return out
 
 
 def run_image_seed(config: ImageRunConfig, *, keep: bool = False) -> ImageSeedResult:
@@ -670,7 +665,7 @@ def _euler_degrees(rotations: np.ndarray) -> np.ndarray:
 def plot_trajectory(result: ImageSeedResult, path: Path) -> list[Path]:
     """Position and orientation against time (truth and estimates) over their errors, with
     the keyframe switches as vertical lines."""
-    from hvo_graph.plotting import (
+    from hvo_graph.report.plotting import (
         TRUTH_STYLE,
         figure_style,
         log_axis,
@@ -742,7 +737,7 @@ def plot_trajectory(result: ImageSeedResult, path: Path) -> list[Path]:
 def plot_tracks(result: ImageSeedResult, path: Path) -> Path:
     """The sample frame with the trails of its tracks: points shared with the frame's pose
     reference (used for H_d) and the others (used for H_c only). PNG only."""
-    from hvo_graph.plotting import FIGURE_DPI, figure_style, new_figure
+    from hvo_graph.report.plotting import FIGURE_DPI, figure_style, new_figure
 
     if result.sample is None:
         raise InputError("plot_tracks: the seed was run without keep=True")

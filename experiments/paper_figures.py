@@ -47,7 +47,13 @@ from hvo_graph.errors import InputError
 from hvo_graph.eval.metrics import error_series, summarize
 from hvo_graph.geometry.rotation import rotation_to_euler
 from hvo_graph.pipeline import make_estimator, measure
-from hvo_graph.plotting import TRUTH_STYLE, figure_style, method_style, new_figure, save_figure
+from hvo_graph.report.plotting import (
+    TRUTH_STYLE,
+    figure_style,
+    method_style,
+    new_figure,
+    save_figure,
+)
 from hvo_graph.sim.scenario import Scenario, paper_scenario, simulate
 from hvo_graph.types import FrameMeasurement, Trajectory
 
@@ -110,7 +116,7 @@ FIGURE_NUMBERS: dict[tuple[str, str], int] = {
     (q.key, run): 3 + i + 4 * r for r, run in enumerate(RUNS) for i, q in enumerate(QUANTITIES)
 }
 
-#: The estimates drawn, in legend order: key of hvo_graph.plotting.METHOD_STYLE and label.
+#: The estimates drawn, in legend order: key of hvo_graph.report.plotting.METHOD_STYLE and label.
 ESTIMATES: tuple[tuple[str, str], ...] = (
     ("kalman", "Kalman filter (paper R_k)"),
     ("smoother-online", "smoother, online (ISAM2)"),

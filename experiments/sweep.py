@@ -8,7 +8,7 @@ each changing one setting and keeping the others at the paper's noisy values
 - ``fps``: frame rate from 10 to 120 frames per second;
 - ``points``: number of plane points from 4 to 100.
 
-At every value the same seeds run every method (hvo_graph.experiment.run_seed);
+At every value the same seeds run every method (hvo_graph.montecarlo.run_seed);
 the figures show the mean over seeds of each RMSE (after the first ``--skip``
 seconds) with its Student-t 95 % confidence band. The default methods are the
 ISAM2 smoother (smoothed), the paper's Kalman filter (paper noisy-run R_k, also
@@ -39,18 +39,15 @@ import numpy as np
 
 from hvo_graph.arguments import add_monte_carlo_options, finite_float, int_at_least, names
 from hvo_graph.errors import InputError
+from hvo_graph.estimators.registry import METHOD_LABELS, METHOD_TITLES
+from hvo_graph.eval.metrics import QUANTITIES
 from hvo_graph.eval.stats import MeanCI
-from hvo_graph.experiment import (
-    METHOD_LABELS,
-    METHOD_TITLES,
-    QUANTITIES,
-    SeedResult,
+from hvo_graph.montecarlo import SeedResult, method_statistics, run_seeds
+from hvo_graph.report.tables import (
     csv_text,
     describe_seeds,
     format_value,
     markdown_table,
-    method_statistics,
-    run_seeds,
     write_text_atomic,
 )
 from hvo_graph.sim.scenario import PAPER_NOISE_VAR, ScenarioConfig, paper_scenario
@@ -221,7 +218,13 @@ def plot_sweep(
 ) -> list[Path]:
     """Four panels (position, orientation, linear and angular velocity RMSE) against the
     swept value: mean over seeds, 95 % confidence band."""
-    from hvo_graph.plotting import figure_style, log_axis, method_style, new_figure, save_figure
+    from hvo_graph.report.plotting import (
+        figure_style,
+        log_axis,
+        method_style,
+        new_figure,
+        save_figure,
+    )
 
     x = np.array(sweep.values, dtype=float)
     drawn = x > 0 if sweep.log_x else np.ones(len(x), dtype=bool)

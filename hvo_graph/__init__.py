@@ -113,6 +113,14 @@ _MOVED: dict[str, tuple[str, ...]] = {
     "hvo_graph.render": ("hvo_graph.sim.render",),
     "hvo_graph.evaluation": ("hvo_graph.eval.metrics",),
     "hvo_graph.stats": ("hvo_graph.eval.stats",),
+    "hvo_graph.experiment": (  # constants resolve from the first module that has them
+        "hvo_graph.estimators.registry",
+        "hvo_graph.eval.metrics",
+        "hvo_graph.report.tables",
+        "hvo_graph.report.progress",
+        "hvo_graph.montecarlo",
+    ),
+    "hvo_graph.plotting": ("hvo_graph.report.plotting",),
 }
 
 

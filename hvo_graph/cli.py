@@ -27,16 +27,19 @@ from typing import TYPE_CHECKING
 
 from hvo_graph.arguments import finite_float, int_at_least
 from hvo_graph.errors import InputError
+from hvo_graph.estimators.registry import COMMAND_METHODS, KALMAN_R_PRESETS, ROBUST_LOSSES
 
 if TYPE_CHECKING:  # the CLI imports the heavy modules lazily, per subcommand
     from hvo_graph.geometry.camera import CameraModel
     from hvo_graph.types import FrameObservations
 
 PROG = "hvo-graph"
-#: ``--method`` choices; kept in step with hvo_graph.pipeline.METHODS (checked by the tests).
-METHODS = ("smoother", "batch", "fixed-lag", "kalman", "measurements", "ippe")
-KALMAN_R = ("paper-noisy", "paper-noise-free", "measured")
-ROBUST = ("none", "huber", "cauchy")
+#: ``--method`` choices, from the method registry (the first is the default).
+METHODS: tuple[str, ...] = COMMAND_METHODS
+#: ``--kalman-r`` choices.
+KALMAN_R: tuple[str, ...] = KALMAN_R_PRESETS
+#: ``--robust`` choices: "none" or a robust loss.
+ROBUST: tuple[str, ...] = ("none", *ROBUST_LOSSES)
 #: RANSAC threshold on H_d for tracks from images (KLT drifts off the plane at edges).
 IMAGE_RANSAC_PX = 2.0
 

@@ -18,12 +18,20 @@ from typing import Protocol
 
 from hvo_graph.errors import InputError
 from hvo_graph.estimators.base import Estimator
+from hvo_graph.estimators.registry import (
+    COMMAND_METHODS,
+    DEFAULT_LAG,
+    EstimatorOptions,
+    build_estimator,
+)
+from hvo_graph.estimators.registry import method as registry_method
 from hvo_graph.frontend import DEFAULT_PIXEL_SIGMA, FrontEndConfig, measure_sequence
 from hvo_graph.geometry.camera import CameraModel
 from hvo_graph.types import FrameMeasurement, FrameObservations, Plane, Trajectory
 
-#: Every ``--method``; the first is the default.
-METHODS = ("smoother", "batch", "fixed-lag", "kalman", "measurements", "ippe")
+#: Every ``--method`` (:data:`hvo_graph.estimators.registry.COMMAND_METHODS`); the
+#: first is the default.
+METHODS: tuple[str, ...] = COMMAND_METHODS
 
 
 class SceneLike(Protocol):
@@ -38,11 +46,11 @@ def make_estimator(
     seed: int | None = 0,
     kalman_r: str = "paper-noisy",
     kalman_world_velocity: bool = False,
-    lag: float = 1.0,
+    lag: float = DEFAULT_LAG,
     robust: str | None = None,
     covariance: bool = False,
 ) -> Estimator:
-    """Build the estimator behind ``--method``.
+    """Build the estimator behind ``--method`` (the factory of its registry row).
 
     Args:
         method: one of :data:`METHODS`.
@@ -55,24 +63,21 @@ def make_estimator(
         robust: None, "huber" or "cauchy" loss on the smoother's measurement factors.
         covariance: smoothers also return per-frame marginal covariances.
     """
-    if method in ("measurements", "ippe"):
-        from hvo_graph.estimators.measurements import RawMeasurements
+    _check_method(method)
+    options = EstimatorOptions(
+        seed=seed,
+        kalman_r=kalman_r,
+        kalman_world_velocity=kalman_world_velocity,
+        lag=lag,
+        robust=robust,
+        covariance=covariance,
+    )
+    return build_estimator(method, options)
 
-        return RawMeasurements(velocity_from="poses" if method == "ippe" else "flow")
-    if method == "kalman":
-        from hvo_graph.estimators.kalman import KalmanBaseline
 
-        return KalmanBaseline(
-            r_preset=kalman_r, seed=seed, world_frame_velocity=kalman_world_velocity
-        )
-    if method in ("smoother", "batch", "fixed-lag"):
-        from hvo_graph.estimators.smoother import FactorGraphSmoother
-
-        solver = {"smoother": "isam2", "batch": "batch", "fixed-lag": "fixed-lag"}[method]
-        return FactorGraphSmoother(
-            solver=solver, lag=lag, robust=robust, compute_covariance=covariance
-        )
-    raise InputError(f"method: expected one of {', '.join(METHODS)}, got {method!r}")
+def _check_method(method: str) -> None:
+    if method not in METHODS:
+        raise InputError(f"method: expected one of {', '.join(METHODS)}, got {method!r}")
 
 
 def measure(
@@ -83,14 +88,15 @@ def measure(
     pixel_sigma: float | None = None,
     ransac_threshold_px: float | None = None,
 ) -> list[FrameMeasurement]:
-    """Per-frame measurements for ``method`` (IPPE poses for "ippe", H_d otherwise)."""
+    """Per-frame measurements for ``method``: with its registry row's pose solver
+    (IPPE poses for "ippe", H_d otherwise)."""
     sigma = next(
         (s for s in (pixel_sigma, scene.pixel_sigma) if s is not None), DEFAULT_PIXEL_SIGMA
     )
     config = FrontEndConfig(
         pixel_sigma=sigma,
         ransac_threshold_px=ransac_threshold_px,
-        pose_solver="ippe" if method == "ippe" else "homography",
+        pose_solver=registry_method(method).pose_solver,
     )
     return measure_sequence(observations, scene.camera, scene.plane, config)
 
@@ -119,8 +125,7 @@ def estimate(
     Returns:
         One pose and twist per frame (and covariances when requested).
     """
-    if method not in METHODS:
-        raise InputError(f"method: expected one of {', '.join(METHODS)}, got {method!r}")
+    _check_method(method)
     estimator = make_estimator(method, **options)  # type: ignore[arg-type]
     frames = measure(
         observations,

@@ -1,5 +1,5 @@
 """experiments/compare.py and experiments/sweep.py end to end on tiny configurations,
-and the library pieces they stand on (hvo_graph.experiment, hvo_graph.plotting)."""
+and the library pieces they stand on (hvo_graph.montecarlo, hvo_graph.report)."""
 
 from __future__ import annotations
 
@@ -15,17 +15,13 @@ import pytest
 from script_helpers import load_script, png_size
 
 from hvo_graph.errors import InputError
+from hvo_graph.estimators.registry import METHOD_LABELS, METHOD_TITLES
 from hvo_graph.eval.metrics import error_series, summarize
-from hvo_graph.experiment import (
-    METHOD_LABELS,
-    METHOD_TITLES,
-    ProgressBar,
-    markdown_table,
-    run_seed,
-    run_seeds,
-)
+from hvo_graph.montecarlo import run_seed, run_seeds
 from hvo_graph.pipeline import estimate
-from hvo_graph.plotting import FIGURE_DPI, METHOD_STYLE
+from hvo_graph.report.plotting import FIGURE_DPI, METHOD_STYLE
+from hvo_graph.report.progress import ProgressBar
+from hvo_graph.report.tables import markdown_table
 from hvo_graph.sim.scenario import paper_scenario, simulate
 
 TINY = ["--seeds", "2", "--duration", "1.5", "--workers", "1", "--no-progress"]

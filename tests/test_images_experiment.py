@@ -17,8 +17,8 @@ import pytest
 from script_helpers import load_script, png_size
 
 from hvo_graph.errors import InputError
-from hvo_graph.experiment import METHOD_TITLES
-from hvo_graph.plotting import FIGURE_DPI
+from hvo_graph.estimators.registry import METHOD_TITLES
+from hvo_graph.report.plotting import FIGURE_DPI
 from hvo_graph.types import FrameMeasurement, FrameObservations, PoseMeasurement, Trajectory
 
 images = load_script("images")

@@ -38,6 +38,27 @@ MOVED = {
         "t_quantile": "hvo_graph.eval.stats",
         "MeanCI": "hvo_graph.eval.stats",
     },
+    "hvo_graph.experiment": {
+        "METHOD_LABELS": "hvo_graph.estimators.registry",
+        "METHOD_TITLES": "hvo_graph.estimators.registry",
+        "check_methods": "hvo_graph.estimators.registry",
+        "QUANTITIES": "hvo_graph.eval.metrics",
+        "run_seed": "hvo_graph.montecarlo",
+        "run_seeds": "hvo_graph.montecarlo",
+        "make_method": "hvo_graph.montecarlo",
+        "SeedResult": "hvo_graph.montecarlo",
+        "method_statistics": "hvo_graph.montecarlo",
+        "ProgressBar": "hvo_graph.report.progress",
+        "markdown_table": "hvo_graph.report.tables",
+        "format_ci": "hvo_graph.report.tables",
+        "write_text_atomic": "hvo_graph.report.tables",
+    },
+    "hvo_graph.plotting": {
+        "METHOD_STYLE": "hvo_graph.report.plotting",
+        "method_style": "hvo_graph.report.plotting",
+        "save_figure": "hvo_graph.report.plotting",
+        "FIGURE_DPI": "hvo_graph.report.plotting",
+    },
 }
 
 

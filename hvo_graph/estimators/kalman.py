@@ -35,6 +35,7 @@ import numpy as np
 from hvo_graph.errors import InputError, as_covariance, as_integer, as_matrix, as_number, as_vector
 from hvo_graph.estimators.base import Estimator
 from hvo_graph.estimators.process_noise import DEFAULT_PROCESS_NOISE, white_noise_blocks
+from hvo_graph.estimators.registry import KALMAN_R_PRESETS
 from hvo_graph.geometry.rotation import euler_to_rotation, rotation_to_euler, skew, wrap_angle
 from hvo_graph.types import FrameMeasurement, StateEstimate
 
@@ -59,9 +60,8 @@ PAPER_R_NOISY: np.ndarray = np.array(
 )
 PAPER_R_NOISY.setflags(write=False)
 
-#: The R_k presets: the paper's two diagonals, and "measured" (the diagonal of the
-#: front end's per-frame covariances, converted to state coordinates).
-R_PRESETS: tuple[str, ...] = ("paper-noisy", "paper-noise-free", "measured")
+#: The R_k presets (:data:`hvo_graph.estimators.registry.KALMAN_R_PRESETS`).
+R_PRESETS: tuple[str, ...] = KALMAN_R_PRESETS
 
 #: Default P_0: the distribution the random initial state is drawn from (zero mean),
 #: and the initial covariance. Standard deviations 0.5 m, 0.2 rad (11.5 deg),

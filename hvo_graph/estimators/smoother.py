@@ -70,6 +70,7 @@ from hvo_graph.estimators.process_noise import (
     velocity_variance,
 )
 from hvo_graph.estimators.process_noise import acceleration_sigma as check_acceleration_sigma
+from hvo_graph.estimators.registry import ROBUST_LOSSES, SOLVERS
 from hvo_graph.types import (
     FrameMeasurement,
     PoseMeasurement,
@@ -92,12 +93,6 @@ __all__ = [
     "FixedLagSmoother",
     "levenberg_marquardt",
 ]
-
-#: The solvers behind :class:`FactorGraphSmoother`, and their ``--method`` names.
-SOLVERS: dict[str, str] = {"isam2": "smoother", "batch": "batch", "fixed-lag": "fixed-lag"}
-
-#: Robust losses on the measurement factors (``gtsam.noiseModel.mEstimator``).
-ROBUST_LOSSES: tuple[str, ...] = ("huber", "cauchy")
 
 #: Default robust threshold on the whitened residual norm (GTSAM applies the
 #: M-estimator to sqrt(e^T Sigma^-1 e)): sqrt of the 95 % quantile of chi^2 with

@@ -22,25 +22,17 @@ from matplotlib.figure import Figure
 from matplotlib.ticker import FuncFormatter
 
 from hvo_graph.errors import InputError
-from hvo_graph.experiment import METHOD_TITLES
+from hvo_graph.estimators.registry import METHODS
 
 #: Resolution of the PNG files, dots per inch.
 FIGURE_DPI = 150
 
-#: Plot style per method label (hvo_graph.experiment.METHOD_LABELS), keyword
-#: arguments of ``Axes.plot``: color, linestyle, marker, label.
+#: Plot style per method (the style and title of each row of
+#: hvo_graph.estimators.registry.METHODS), keyword arguments of ``Axes.plot``:
+#: color, linestyle, marker, label.
 METHOD_STYLE: dict[str, dict[str, object]] = {
-    "measurements": {"color": "#999999", "linestyle": "-", "marker": "x"},
-    "kalman": {"color": "#D55E00", "linestyle": "-", "marker": "s"},
-    "kalman-measured": {"color": "#E69F00", "linestyle": "-.", "marker": "D"},
-    "smoother": {"color": "#0072B2", "linestyle": "-", "marker": "o"},
-    "smoother-online": {"color": "#56B4E9", "linestyle": "-", "marker": "^"},
-    "batch": {"color": "#009E73", "linestyle": "--", "marker": "v"},
-    "fixed-lag": {"color": "#CC79A7", "linestyle": ":", "marker": "P"},
-    "ippe": {"color": "#000000", "linestyle": "-", "marker": "*"},
+    m.name: {**m.style, "label": m.title} for m in METHODS
 }
-for _label, _style in METHOD_STYLE.items():
-    _style["label"] = METHOD_TITLES[_label]
 
 #: Ground truth in time plots: dashed black.
 TRUTH_STYLE: dict[str, object] = {

@@ -1,0 +1,273 @@
+"""The one table of estimation methods, and the choice sets of their options.
+
+Every method the command line, the pipeline, the Monte Carlo runner, the
+experiments and the figures know is one :class:`Method` record of
+:data:`METHODS` (in table order): its name, its title in tables and legends,
+the front end's pose solver it reads, whether ``hvo-graph estimate --method``
+offers it, which :class:`EstimatorOptions` apply, its plot style and its
+factory. The Kalman R_k presets and the smoother's robust losses are defined
+here too, once.
+
+The factories import the estimator modules when called: the command line reads
+its choices from this table, and ``hvo-graph --help`` should not load GTSAM.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable, Iterable, Mapping
+from dataclasses import dataclass, field
+from types import MappingProxyType
+from typing import TYPE_CHECKING
+
+from hvo_graph.errors import InputError
+
+if TYPE_CHECKING:
+    from hvo_graph.estimators.base import Estimator
+
+#: Kalman filter R_k presets: the paper's two diagonals, and "measured" (the diagonal
+#: of the front end's per-frame covariances, converted to state coordinates).
+KALMAN_R_PRESETS: tuple[str, ...] = ("paper-noisy", "paper-noise-free", "measured")
+
+#: Robust losses of the smoother's measurement factors (``gtsam.noiseModel.mEstimator``).
+ROBUST_LOSSES: tuple[str, ...] = ("huber", "cauchy")
+
+#: Window of the fixed-lag smoother, seconds, unless told otherwise.
+DEFAULT_LAG: float = 1.0
+
+
+@dataclass(frozen=True)
+class EstimatorOptions:
+    """The options of :func:`build_estimator`; each method reads those it lists.
+
+    Attributes:
+        seed: random initial state of the Kalman filters; None for unseeded.
+        kalman_r: R_k preset of "kalman" (one of :data:`KALMAN_R_PRESETS`).
+        kalman_world_velocity: "kalman" rotates measured v into the world frame.
+        lag: window of "fixed-lag", seconds.
+        robust: None or one of :data:`ROBUST_LOSSES`, on the smoothers' measurements.
+        covariance: the smoothers also return per-frame marginal covariances.
+    """
+
+    seed: int | None = 0
+    kalman_r: str = "paper-noisy"
+    kalman_world_velocity: bool = False
+    lag: float = DEFAULT_LAG
+    robust: str | None = None
+    covariance: bool = False
+
+
+@dataclass(frozen=True)
+class Method:
+    """One estimation method.
+
+    Attributes:
+        name: the label (``--method``, table keys, file names).
+        title: human-readable name in tables and legends.
+        pose_solver: the front end's pose solver it reads ("homography": H_d; "ippe").
+        command: its place among the ``hvo-graph estimate --method`` choices (0 is
+            the default), None when the command does not offer it.
+        options: the :class:`EstimatorOptions` fields it reads.
+        style: ``Axes.plot`` keyword arguments (color, linestyle, marker).
+        build: its factory, None for "smoother-online", read from the run of
+            ``online_of``.
+        solver: the :class:`~hvo_graph.estimators.smoother.FactorGraphSmoother`
+            back end of the graph methods.
+        online_of: the method whose online (causal) estimates this one is.
+    """
+
+    name: str
+    title: str
+    pose_solver: str
+    command: int | None
+    options: tuple[str, ...]
+    style: Mapping[str, str]
+    build: Callable[[Method, EstimatorOptions], Estimator] | None = field(default=None, repr=False)
+    solver: str | None = None
+    online_of: str | None = None
+
+
+def _raw(method: Method, options: EstimatorOptions) -> Estimator:
+    from hvo_graph.estimators.measurements import RawMeasurements
+
+    return RawMeasurements(velocity_from="poses" if method.pose_solver == "ippe" else "flow")
+
+
+def _kalman(method: Method, options: EstimatorOptions) -> Estimator:
+    from hvo_graph.estimators.kalman import KalmanBaseline
+
+    return KalmanBaseline(
+        r_preset=options.kalman_r,
+        seed=options.seed,
+        world_frame_velocity=options.kalman_world_velocity,
+    )
+
+
+def _kalman_measured(method: Method, options: EstimatorOptions) -> Estimator:
+    """The paper's filter given what the smoother is given: R_k from the front end's
+    covariances, the smoother's process noise, and world-frame velocity integration."""
+    from hvo_graph.estimators.kalman import KalmanBaseline
+    from hvo_graph.estimators.process_noise import DEFAULT_ACCELERATION_SIGMA, kalman_process_noise
+
+    return KalmanBaseline(
+        r_preset="measured",
+        process_noise=kalman_process_noise(DEFAULT_ACCELERATION_SIGMA),
+        seed=options.seed,
+        world_frame_velocity=True,
+    )
+
+
+def _graph(method: Method, options: EstimatorOptions) -> Estimator:
+    from hvo_graph.estimators.smoother import FactorGraphSmoother
+
+    return FactorGraphSmoother(
+        solver=str(method.solver),
+        lag=options.lag,
+        robust=options.robust,
+        compute_covariance=options.covariance,
+    )
+
+
+_KALMAN = ("seed", "kalman_r", "kalman_world_velocity")
+_GRAPH = ("robust", "covariance")
+
+#: Every method, in table order.
+METHODS: tuple[Method, ...] = (
+    Method(
+        "measurements",
+        "raw measurements (H_d, H_c)",
+        "homography",
+        4,
+        (),
+        {"color": "#999999", "linestyle": "-", "marker": "x"},
+        _raw,
+    ),
+    Method(
+        "kalman",
+        "Kalman (paper, noisy R)",
+        "homography",
+        3,
+        _KALMAN,
+        {"color": "#D55E00", "linestyle": "-", "marker": "s"},
+        _kalman,
+    ),
+    Method(
+        "kalman-measured",
+        "Kalman (measured R)",
+        "homography",
+        None,
+        ("seed",),
+        {"color": "#E69F00", "linestyle": "-.", "marker": "D"},
+        _kalman_measured,
+    ),
+    Method(
+        "smoother",
+        "ISAM2 smoothed",
+        "homography",
+        0,
+        _GRAPH,
+        {"color": "#0072B2", "linestyle": "-", "marker": "o"},
+        _graph,
+        solver="isam2",
+    ),
+    Method(
+        "smoother-online",
+        "ISAM2 online",
+        "homography",
+        None,
+        _GRAPH,
+        {"color": "#56B4E9", "linestyle": "-", "marker": "^"},
+        online_of="smoother",
+    ),
+    Method(
+        "batch",
+        "batch LM",
+        "homography",
+        1,
+        _GRAPH,
+        {"color": "#009E73", "linestyle": "--", "marker": "v"},
+        _graph,
+        solver="batch",
+    ),
+    Method(
+        "fixed-lag",
+        "fixed-lag (1 s)",
+        "homography",
+        2,
+        ("lag", *_GRAPH),
+        {"color": "#CC79A7", "linestyle": ":", "marker": "P"},
+        _graph,
+        solver="fixed-lag",
+    ),
+    Method(
+        "ippe",
+        "IPPE per frame",
+        "ippe",
+        5,
+        (),
+        {"color": "#000000", "linestyle": "-", "marker": "*"},
+        _raw,
+    ),
+)
+
+#: {name: Method}.
+BY_NAME: Mapping[str, Method] = MappingProxyType({m.name: m for m in METHODS})
+
+#: Every method's name, in table order.
+METHOD_LABELS: tuple[str, ...] = tuple(BY_NAME)
+
+#: {name: title}.
+METHOD_TITLES: Mapping[str, str] = MappingProxyType({m.name: m.title for m in METHODS})
+
+#: The ``hvo-graph estimate --method`` choices; the first is the default.
+COMMAND_METHODS: tuple[str, ...] = tuple(
+    m.name for m in sorted((m for m in METHODS if m.command is not None), key=lambda m: m.command)
+)
+
+#: The factor-graph back ends: {solver: method name}.
+SOLVERS: Mapping[str, str] = MappingProxyType({m.solver: m.name for m in METHODS if m.solver})
+
+
+def method(name: str) -> Method:
+    """The :class:`Method` called ``name``, or InputError listing the choices."""
+    found = BY_NAME.get(name)
+    if found is None:
+        raise InputError(f"method: expected one of {', '.join(METHOD_LABELS)}, got {name!r}")
+    return found
+
+
+def check_methods(methods: Iterable[str]) -> tuple[str, ...]:
+    """The method names as a tuple, in the order given.
+
+    Raises:
+        InputError: empty, unknown or repeated names.
+    """
+    if isinstance(methods, str):
+        methods = [methods]
+    chosen = tuple(methods)
+    if not chosen:
+        raise InputError(f"methods: expected at least one of {', '.join(METHOD_LABELS)}")
+    for label in chosen:
+        if label not in BY_NAME:
+            raise InputError(
+                f"methods: unknown method {label!r}, expected one of {', '.join(METHOD_LABELS)}"
+            )
+    if len(set(chosen)) != len(chosen):
+        dup = next(m for m in chosen if chosen.count(m) > 1)
+        raise InputError(f"methods: {dup!r} is listed twice")
+    return chosen
+
+
+def build_estimator(name: str, options: EstimatorOptions | None = None) -> Estimator:
+    """A fresh estimator of method ``name`` with ``options`` (defaults when None).
+
+    Raises:
+        InputError: an unknown name, or a method read from another one's run
+            (``online_of``: build that one and take its ``online_trajectory()``).
+    """
+    record = method(name)
+    if record.build is None:
+        raise InputError(
+            f"method {name!r}: no estimator of its own; it is the online estimate of "
+            f"{record.online_of!r}"
+        )
+    return record.build(record, options or EstimatorOptions())

@@ -1,0 +1,347 @@
+"""Monte Carlo runs: one simulated seed through every method, and many seeds in parallel.
+
+The library side of ``experiments/compare.py``, ``sweep.py`` and ``images.py``.
+One seed of one scenario (:class:`~hvo_graph.sim.scenario.ScenarioConfig`) is
+simulated once and measured once per front-end pose solver: the homography front
+end (H_d poses, H_c twists) feeds every method except "ippe", which gets OpenCV's
+per-frame ``solvePnP(SOLVEPNP_IPPE)`` poses. Every random source is seeded from
+the config's seed (pixel noise, layout of extra points, the Kalman filter's
+random initial state), so the same seed gives the same numbers.
+
+The methods are the rows of :data:`hvo_graph.estimators.registry.METHODS`;
+"smoother-online" is the same ISAM2 run as "smoother", each frame's estimate
+right after its own update (``Estimator.online_trajectory``), no second run.
+Then errors against the ground truth per seed, and their aggregation over seeds.
+"""
+
+from __future__ import annotations
+
+import multiprocessing
+import os
+from collections.abc import Callable, Iterator, Mapping, Sequence
+from concurrent.futures import FIRST_COMPLETED, ProcessPoolExecutor, wait
+from contextlib import contextmanager
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from hvo_graph.errors import InputError, as_integer, as_number
+from hvo_graph.estimators.base import Estimator
+from hvo_graph.estimators.registry import (
+    METHOD_LABELS,
+    EstimatorOptions,
+    build_estimator,
+    check_methods,
+    method,
+)
+from hvo_graph.eval.metrics import QUANTITIES, ErrorSeries, ErrorSummary, error_series, summarize
+from hvo_graph.eval.stats import MeanCI, mean_ci
+from hvo_graph.pipeline import measure
+from hvo_graph.report.progress import ProgressBar
+from hvo_graph.sim.scenario import ScenarioConfig, simulate
+from hvo_graph.types import FrameMeasurement, Trajectory
+
+#: Window of the fixed-lag smoother in the experiments, seconds.
+FIXED_LAG_SECONDS = 1.0
+
+#: Environment of the worker processes of :func:`run_seeds`: one BLAS / OpenMP thread
+#: each. The parallelism is across processes; threaded BLAS in every worker
+#: oversubscribes the cores, and the front end's small SVDs then ran ~10x slower on a
+#: loaded 2-core machine.
+WORKER_ENVIRONMENT: dict[str, str] = {
+    "OPENBLAS_NUM_THREADS": "1",
+    "OMP_NUM_THREADS": "1",
+    "MKL_NUM_THREADS": "1",
+}
+
+_NAMES = tuple(q.name for q in QUANTITIES)
+
+
+def make_method(label: str, seed: int) -> Estimator:
+    """A fresh estimator for ``label`` as the experiments run it (Kalman seed ``seed``,
+    :data:`FIXED_LAG_SECONDS`); not for "smoother-online", which reads a "smoother" run."""
+    return build_estimator(label, EstimatorOptions(seed=seed, lag=FIXED_LAG_SECONDS))
+
+
+class MethodRuns:
+    """The methods on one sequence, each estimator run once.
+
+    Measurements are made once per front-end pose solver (``measure``); a method
+    read from another one's run (``online_of``) takes that run's online estimates.
+
+    Args:
+        measure: the measurements for a pose solver ("homography" or "ippe").
+        seed: seed of the Kalman filters' random initial state.
+    """
+
+    def __init__(self, measure: Callable[[str], Sequence[FrameMeasurement]], seed: int) -> None:
+        self._measure = measure
+        self.seed = seed
+        self._frames: dict[str, Sequence[FrameMeasurement]] = {}
+        self._runs: dict[str, tuple[Estimator, Trajectory]] = {}
+
+    def frames(self, pose_solver: str) -> Sequence[FrameMeasurement]:
+        """The measurements of ``pose_solver``, made on first use."""
+        if pose_solver not in self._frames:
+            self._frames[pose_solver] = self._measure(pose_solver)
+        return self._frames[pose_solver]
+
+    def trajectory(self, label: str) -> Trajectory:
+        """The final trajectory of method ``label`` (online estimates for ``online_of``)."""
+        record = method(label)
+        source = method(record.online_of) if record.online_of else record
+        if source.name not in self._runs:
+            frames = self.frames(source.pose_solver)
+            estimator = make_method(source.name, self.seed)
+            self._runs[source.name] = (estimator, estimator.run(frames))
+        estimator, final = self._runs[source.name]
+        return estimator.online_trajectory() if record.online_of else final
+
+
+@dataclass
+class SeedResult:
+    """Errors of every method on one simulated seed.
+
+    Attributes:
+        seed: the scenario's seed.
+        config: the scenario.
+        summaries: per method, RMSE and max after ``skip`` seconds.
+        series: per method, per-frame errors over the whole sequence (empty when
+            not kept).
+        skip: seconds left out at the start of the summaries.
+    """
+
+    seed: int
+    config: ScenarioConfig
+    summaries: dict[str, ErrorSummary]
+    series: dict[str, ErrorSeries] = field(default_factory=dict)
+    skip: float = 1.0
+
+
+def run_seed(
+    config: ScenarioConfig,
+    methods: Sequence[str] = METHOD_LABELS,
+    *,
+    skip: float = 1.0,
+    keep_series: bool = True,
+) -> SeedResult:
+    """Simulate ``config`` once and run every method on it.
+
+    Args:
+        config: the scenario, with its seed.
+        methods: names from :data:`~hvo_graph.estimators.registry.METHOD_LABELS`.
+        skip: errors are summarized over frames with t >= t_0 + skip (seconds),
+            after the estimators' start-up transient (the Kalman filter starts
+            from a random state).
+        keep_series: also return the per-frame errors.
+    Raises:
+        InputError: bad methods or skip, or an estimator's InputError with the
+            seed and method prepended.
+        RuntimeError: any other failure of an estimator, naming the seed and method.
+    """
+    methods = check_methods(methods)
+    if not isinstance(config, ScenarioConfig):
+        raise InputError(f"config: expected a ScenarioConfig, got {type(config).__name__}")
+    skip = as_number(skip, "skip", at_least=0.0, what="a number of seconds")
+    if skip >= config.duration:
+        raise InputError(
+            f"skip: {skip:g} s leaves no frame of a {config.duration:g} s sequence to evaluate"
+        )
+    scenario = simulate(config)
+    truth = scenario.groundtruth
+    t_start = float(truth.t[0]) + float(skip)
+    runs = MethodRuns(
+        lambda solver: measure(
+            scenario.observations, scenario, method="ippe" if solver == "ippe" else "smoother"
+        ),
+        config.seed,
+    )
+    result = SeedResult(seed=config.seed, config=config, summaries={}, skip=float(skip))
+    for label in methods:
+        try:
+            series = error_series(runs.trajectory(label), truth)
+            result.summaries[label] = summarize(series, t_start=t_start)
+        except InputError as exc:
+            raise InputError(f"seed {config.seed}, method {label}: {exc}") from exc
+        except Exception as exc:  # e.g. a GTSAM failure: say where, even from a worker process
+            raise RuntimeError(
+                f"seed {config.seed}, method {label}: {type(exc).__name__}: {exc}"
+            ) from exc
+        if keep_series:
+            result.series[label] = series
+    return result
+
+
+def _run_seed_job(job: tuple[ScenarioConfig, tuple[str, ...], float, bool]) -> SeedResult:
+    config, methods, skip, keep_series = job
+    return run_seed(config, methods, skip=skip, keep_series=keep_series)
+
+
+def resolve_workers(workers: int | None) -> int:
+    """Worker processes: ``workers`` (>= 1), or ``os.cpu_count()`` when None."""
+    if workers is None:
+        return max(1, os.cpu_count() or 1)
+    return as_integer(workers, "workers", 1)
+
+
+@contextmanager
+def _environment(values: Mapping[str, str]) -> Iterator[None]:
+    """Set environment variables for the duration of the block (restored after)."""
+    saved = {name: os.environ.get(name) for name in values}
+    os.environ.update(values)
+    try:
+        yield
+    finally:
+        for name, value in saved.items():
+            if value is None:
+                os.environ.pop(name, None)
+            else:
+                os.environ[name] = value
+
+
+def run_seeds(
+    configs: Sequence[ScenarioConfig],
+    methods: Sequence[str] = METHOD_LABELS,
+    *,
+    skip: float = 1.0,
+    keep_series: bool = True,
+    workers: int | None = None,
+    progress: bool = True,
+    label: str = "seeds",
+) -> list[SeedResult]:
+    """:func:`run_seed` for every config, over ``workers`` processes; results in input order.
+
+    Args:
+        configs: one scenario per run (typically the same scenario, different seeds).
+        methods: names from :data:`~hvo_graph.estimators.registry.METHOD_LABELS`.
+        skip: seconds left out at the start of every summary.
+        keep_series: keep the per-frame errors.
+        workers: processes (``concurrent.futures.ProcessPoolExecutor``, started with
+            "spawn" and :data:`WORKER_ENVIRONMENT`); 1 runs in this process; None =
+            ``os.cpu_count()``.
+        progress: draw a :class:`ProgressBar` on stderr.
+        label: what the progress bar counts.
+    """
+    methods = check_methods(methods)
+    workers = resolve_workers(workers)
+    configs = list(configs)
+    if not configs:
+        raise InputError("configs: expected at least one scenario")
+    jobs = [(config, methods, skip, keep_series) for config in configs]
+    results: list[SeedResult | None] = [None] * len(jobs)
+    with ProgressBar(len(jobs), label=label, enabled=progress) as bar:
+        if workers == 1 or len(jobs) == 1:
+            for i, job in enumerate(jobs):
+                results[i] = _run_seed_job(job)
+                bar.update()
+        else:
+            # Longest runs first (front-end cost ~ frames x points), so that no
+            # worker is left with a long run at the end; results keep the input order.
+            order = sorted(
+                range(len(jobs)), key=lambda i: -configs[i].num_frames * configs[i].num_points
+            )
+            # Fresh interpreters ("spawn") read WORKER_ENVIRONMENT before importing numpy;
+            # forked workers would inherit this process's BLAS threads.
+            with (
+                _environment(WORKER_ENVIRONMENT),
+                ProcessPoolExecutor(
+                    max_workers=min(workers, len(jobs)),
+                    mp_context=multiprocessing.get_context("spawn"),
+                ) as pool,
+            ):
+                pending = {pool.submit(_run_seed_job, jobs[i]): i for i in order}
+                while pending:
+                    finished, _ = wait(pending, return_when=FIRST_COMPLETED)
+                    for future in finished:
+                        i = pending.pop(future)
+                        error = future.exception()
+                        if error is not None:
+                            for other in pending:
+                                other.cancel()
+                            raise error
+                        results[i] = future.result()
+                        bar.update()
+    return [r for r in results if r is not None]
+
+
+# -- aggregation over seeds --------------------------------------------------------------
+
+
+def metric_values(
+    results: Sequence[SeedResult], method: str, quantity: str, stat: str = "rmse"
+) -> np.ndarray:
+    """(S,) the ``stat`` ("rmse" or "max") of ``quantity`` for ``method``, one per seed.
+
+    NaN where a seed gave no value (velocity unknown).
+    """
+    if stat not in ("rmse", "max"):
+        raise InputError(f"stat: expected 'rmse' or 'max', got {stat!r}")
+    if quantity not in {q.name for q in QUANTITIES}:
+        names = ", ".join(q.name for q in QUANTITIES)
+        raise InputError(f"quantity: expected one of {names}, got {quantity!r}")
+    out = np.empty(len(results))
+    for i, r in enumerate(results):
+        if method not in r.summaries:
+            raise InputError(f"seed {r.seed}: no result for method {method!r}")
+        value = getattr(r.summaries[method], f"{quantity}_{stat}")
+        out[i] = np.nan if value is None else value
+    return out
+
+
+def _finite_ci(values: np.ndarray) -> MeanCI | None:
+    finite = values[np.isfinite(values)]
+    return mean_ci(finite) if finite.size else None
+
+
+def method_statistics(
+    results: Sequence[SeedResult], method: str, stat: str = "rmse"
+) -> dict[str, MeanCI | None]:
+    """Per quantity, the mean over seeds of ``stat`` with its 95 % CI (None: no values)."""
+    return {q: _finite_ci(metric_values(results, method, q, stat)) for q in _NAMES}
+
+
+def ratio_statistics(
+    results: Sequence[SeedResult], numerator: str, denominator: str
+) -> dict[str, MeanCI | None]:
+    """Per quantity, the mean over seeds of RMSE(numerator) / RMSE(denominator), 95 % CI.
+
+    The ratio is taken per seed first (a paired comparison on identical data),
+    then averaged: the mean of per-seed ratios, not the ratio of mean RMSEs.
+    """
+    out: dict[str, MeanCI | None] = {}
+    for q in _NAMES:
+        num = metric_values(results, numerator, q)
+        den = metric_values(results, denominator, q)
+        with np.errstate(divide="ignore", invalid="ignore"):
+            out[q] = _finite_ci(num / den)
+    return out
+
+
+def mean_error_over_time(
+    results: Sequence[SeedResult], method: str
+) -> tuple[np.ndarray, dict[str, np.ndarray]]:
+    """Per-frame error of ``method`` averaged over seeds.
+
+    Returns:
+        t (K,) seconds and, per quantity, (K,) mean error (NaN where no seed has a value).
+    Raises:
+        InputError: series not kept, or seeds with different frame times.
+    """
+    if not results or any(method not in r.series for r in results):
+        raise InputError(f"mean_error_over_time: per-frame errors of {method!r} were not kept")
+    t = results[0].series[method].t
+    curves: dict[str, np.ndarray] = {}
+    for q in _NAMES:
+        rows = []
+        for r in results:
+            s = r.series[method]
+            if len(s.t) != len(t) or not np.allclose(s.t, t):
+                raise InputError(f"seed {r.seed}: frame times differ from seed {results[0].seed}")
+            e = getattr(s, q)
+            rows.append(np.full(len(t), np.nan) if e is None else np.asarray(e, dtype=float))
+        stack = np.array(rows)
+        count = np.isfinite(stack).sum(axis=0)
+        total = np.where(np.isfinite(stack), stack, 0.0).sum(axis=0)
+        with np.errstate(invalid="ignore", divide="ignore"):
+            curves[q] = np.where(count > 0, total / np.maximum(count, 1), np.nan)
+    return np.asarray(t, dtype=float), curves
