@@ -335,7 +335,7 @@ def dense_marginals(smoother: FactorGraphSmoother, values: gtsam.Values) -> dict
     keys = [k for i in smoother._indices for k in (X(i), V(i))]
     column = {key: 6 * j for j, key in enumerate(keys)}
     information = np.zeros((6 * len(keys), 6 * len(keys)))
-    linear = smoother._graph.linearize(values)
+    linear = smoother.backend.graph.linearize(values)
     for f in range(linear.size()):
         factor = linear.at(f)
         A, _ = factor.jacobian()
@@ -352,7 +352,7 @@ def test_batch_covariances_equal_the_dense_inverse_information(paper_truth):
     frames = measure(paper_truth, np.random.default_rng(6))[:40]
     smoother = BatchSmoother(compute_covariance=True)
     trajectory = smoother.run(frames)
-    expected = dense_marginals(smoother, smoother._batch_values())
+    expected = dense_marginals(smoother, smoother.backend.values())
     for i in range(40):
         np.testing.assert_allclose(
             trajectory.covariances[i],
@@ -425,8 +425,8 @@ def test_custom_factors_see_isam2_values_without_copying(paper_truth):
 
     graph = gtsam.NonlinearFactorGraph()
     graph.add(gtsam.CustomFactor(gtsam.noiseModel.Unit.Create(6), [V(49)], probe))
-    smoother._isam.update(graph, gtsam.Values())
-    assert seen and all(v is smoother._theta for v in seen)
+    smoother.backend.isam.update(graph, gtsam.Values())
+    assert seen and all(v is smoother.backend.theta for v in seen)
 
 
 # -- input checks ----------------------------------------------------------------------------
@@ -563,7 +563,7 @@ def test_fixed_lag_values_are_the_smoothed_values_when_they_left(paper_truth):
     for j, frame in enumerate(frames):
         smoother.update(frame)
         for i in range(j):
-            if i not in left and not smoother._isam.valueExists(X(i)):
+            if i not in left and not smoother.backend.isam.valueExists(X(i)):
                 left[i] = j
     fixed = smoother.trajectory()
     assert sorted(left) == list(range(len(left))) and len(left) > 40

@@ -23,7 +23,8 @@ and the reasons for every default):
   covariance Q dt; Q = diag(s_w^2 I_3, s_v^2 I_3) from ``acceleration_sigma``;
 - optional robust loss (Huber or Cauchy) on the two measurement factors.
 
-Solvers (one :class:`~hvo_graph.estimators.base.Estimator` interface):
+Solvers (one :class:`~hvo_graph.estimators.base.Estimator` interface; the back
+ends are in :mod:`hvo_graph.estimators.solvers`):
 
 - ``"isam2"`` (``--method smoother``): one ISAM2 update per frame; the online
   estimate of frame k is the value right after its update, :meth:`trajectory`
@@ -34,20 +35,11 @@ Solvers (one :class:`~hvo_graph.estimators.base.Estimator` interface):
 - ``"fixed-lag"``: GTSAM's ``IncrementalFixedLagSmoother`` with a window of
   ``lag`` seconds; :meth:`trajectory` gives each frame's value as it left the
   window (or its current value).
-
-Speed note: the two custom factors are Python callbacks that GTSAM hands the
-solver's ``Values``. pybind11 copies a C++ ``Values`` into Python on every call
-unless a Python object already wraps that instance, which would make every
-frame O(number of frames). The ISAM2 solvers therefore keep a Python reference
-to ISAM2's linearization point (``getLinearizationPoint()``), and the batch
-solver runs its own Levenberg-Marquardt loop on Python-owned ``Values``
-(GTSAM's optimizer would copy the whole ``Values`` per factor: O(N^2)).
 """
 
 from __future__ import annotations
 
 import math
-from collections import deque
 from collections.abc import Sequence
 
 import gtsam
@@ -71,6 +63,12 @@ from hvo_graph.estimators.process_noise import (
 )
 from hvo_graph.estimators.process_noise import acceleration_sigma as check_acceleration_sigma
 from hvo_graph.estimators.registry import ROBUST_LOSSES, SOLVERS
+from hvo_graph.estimators.solvers import (
+    MARGINALIZATION_BLOCKS,
+    Backend,
+    levenberg_marquardt,
+    make_backend,
+)
 from hvo_graph.types import (
     FrameMeasurement,
     PoseMeasurement,
@@ -86,6 +84,7 @@ __all__ = [
     "DEFAULT_RELINEARIZE_THRESHOLD",
     "DEFAULT_ROBUST_THRESHOLD",
     "DEFAULT_WORLD_SIGMA",
+    "MARGINALIZATION_BLOCKS",
     "ROBUST_LOSSES",
     "SOLVERS",
     "BatchSmoother",
@@ -115,14 +114,10 @@ DEFAULT_RELINEARIZE_THRESHOLD: float = 0.05
 #: ISAM2 checks for relinearization every this many updates (GTSAM's default).
 DEFAULT_RELINEARIZE_SKIP: int = 10
 
-#: The fixed-lag smoother marginalizes in blocks of lag / MARGINALIZATION_BLOCKS
-#: seconds (frame timestamps are rounded down to the block), so its window holds
-#: between lag and 1.1 lag seconds. Marginalizing at every frame made GTSAM's
-#: update about three times as costly (IncrementalFixedLagSmoother re-orders and
-#: re-eliminates the window at each marginalization).
-MARGINALIZATION_BLOCKS: int = 10
-
 _ZERO6 = np.zeros(6)
+
+#: A checked twist measurement: (z, covariance, node frame indices, node weights).
+_TwistMeasurement = tuple[np.ndarray, np.ndarray, list[int], list[float]]
 
 
 def _checked_covariance(matrix: object, name: str) -> np.ndarray:
@@ -175,67 +170,6 @@ def _keyframe_model(pose: PoseMeasurement, k: int) -> tuple[gtsam.Pose3, np.ndar
     if J.shape != (6, 6) or not np.all(np.isfinite(J)):
         raise InputError(f"{name}.plane_jacobian: expected a finite (6, 6) matrix")
     return gtsam.Pose3(gtsam.Rot3(R), p), J
-
-
-def levenberg_marquardt(
-    graph: gtsam.NonlinearFactorGraph,
-    initial: gtsam.Values,
-    *,
-    max_iterations: int = 100,
-    relative_tolerance: float = 1e-10,
-    absolute_tolerance: float = 1e-12,
-    initial_lambda: float = 1e-5,
-) -> tuple[gtsam.Values, int]:
-    """Minimize the graph's error with Levenberg-Marquardt (GTSAM's scheme, Python loop).
-
-    Each iteration linearizes the graph at the current values (Gauss-Newton
-    system J delta = -e), adds sqrt(lambda) I damping priors on every variable
-    (GTSAM's default, non-diagonal damping), solves with GTSAM's multifrontal
-    elimination, and retracts; a step that does not lower the error is retried
-    with lambda x 10, an accepted one divides lambda by 10. Stops when the
-    error decrease is below ``relative_tolerance * error + absolute_tolerance``.
-
-    Why not ``gtsam.LevenbergMarquardtOptimizer``: its iterates are C++
-    ``Values``, which pybind11 copies in full for every Python ``CustomFactor``
-    callback, making one iteration O(N^2) in the number of frames (34 s for
-    3,000 frames against 1 s here, where the iterates are Python-owned).
-
-    Args:
-        graph: the nonlinear factor graph.
-        initial: initial values of every variable.
-        max_iterations: most linearizations.
-        relative_tolerance, absolute_tolerance: convergence test on the error decrease.
-        initial_lambda: starting damping.
-    Returns:
-        (optimized values, iterations used).
-    """
-    values = gtsam.Values(initial)
-    error = graph.error(values)
-    dims = [(key, values.zeroVectors().at(key).size) for key in values.keys()]
-    units = {d: gtsam.noiseModel.Unit.Create(d) for _, d in dims}
-    eyes = {d: np.eye(d) for _, d in dims}
-    lam = initial_lambda
-    for iteration in range(1, max_iterations + 1):
-        linear = graph.linearize(values)
-        while True:
-            damped = gtsam.GaussianFactorGraph()
-            damped.push_back(linear)
-            root = math.sqrt(lam)
-            for key, d in dims:
-                damped.add(key, root * eyes[d], np.zeros(d), units[d])
-            candidate = values.retract(damped.optimize())
-            candidate_error = graph.error(candidate)
-            if candidate_error <= error:
-                lam = max(lam / 10.0, 1e-15)
-                break
-            lam *= 10.0
-            if lam > 1e10:  # no descent direction left: converged as far as it goes
-                return values, iteration
-        decrease = error - candidate_error
-        values, error = candidate, candidate_error
-        if decrease <= relative_tolerance * error + absolute_tolerance:
-            return values, iteration
-    return values, max_iterations
 
 
 class FactorGraphSmoother(Estimator):
@@ -305,8 +239,9 @@ class FactorGraphSmoother(Estimator):
         self._twist_prior_noise = gtsam.noiseModel.Isotropic.Sigma(
             6, as_number(initial_twist_sigma, "initial_twist_sigma", above=0.0)
         )
-        self.max_iterations = as_integer(max_iterations, "max_iterations", 1)
+        max_iterations = as_integer(max_iterations, "max_iterations", 1)
         relinearize_skip = as_integer(relinearize_skip, "relinearize_skip", 1)
+        threshold = as_number(relinearize_threshold, "relinearize_threshold", above=0.0)
 
         # Frame bookkeeping: index and time of every frame, position by index.
         self._indices: list[int] = []
@@ -316,43 +251,20 @@ class FactorGraphSmoother(Estimator):
         self._twist = _ZERO6
         self._noise_cache: dict[float, tuple[gtsam.noiseModel.Base, gtsam.noiseModel.Base]] = {}
 
-        params = gtsam.ISAM2Params()
-        # Only the poses need relinearizing: every factor is affine in the twists V with
-        # constant Jacobians (motion: -dt/2 I; measured and random-walk twists: linear).
-        thresholds = gtsam.ISAM2ThresholdMap()
-        thresholds.insert(
-            ("x", np.full(6, as_number(relinearize_threshold, "relinearize_threshold", above=0.0)))
+        #: The solver's back end (:mod:`hvo_graph.estimators.solvers`).
+        self.backend: Backend = make_backend(
+            solver,
+            lag=self.lag,
+            relinearize_threshold=threshold,
+            relinearize_skip=relinearize_skip,
+            max_iterations=max_iterations,
+            compute_covariance=self.compute_covariance,
         )
-        thresholds.insert(("v", np.full(6, np.inf)))
-        params.setRelinearizeThreshold(thresholds)
-        params.relinearizeSkip = relinearize_skip
-        # Check only the cliques touched by the update, not every variable (O(1) per frame).
-        params.enablePartialRelinearizationCheck = True
-        params.findUnusedFactorSlots = solver == "fixed-lag"
-        self._isam: gtsam.ISAM2 | None = None
-        self._fixed_lag: gtsam.IncrementalFixedLagSmoother | None = None
-        if solver == "isam2":
-            self._isam = gtsam.ISAM2(params)
-        elif solver == "fixed-lag":
-            # Stamps are multiples of the block and the lag is MARGINALIZATION_BLOCKS blocks:
-            # half a block more keeps GTSAM's test "stamp < latest - lag" away from ties.
-            self._smoother_lag = self.lag * (1.0 + 0.5 / MARGINALIZATION_BLOCKS)
-            self._fixed_lag = gtsam.IncrementalFixedLagSmoother(self._smoother_lag, params)
-            self._isam = self._fixed_lag.getISAM2()  # a reference to the smoother's own ISAM2
-        # The Python wrapper of ISAM2's linearization point: while it lives, the custom
-        # factors' callbacks receive it instead of a fresh copy (see the module docstring).
-        self._theta = None if self._isam is None else self._isam.getLinearizationPoint()
-        # batch: the whole graph and its initial values; the optimum once computed.
-        self._graph = gtsam.NonlinearFactorGraph()
-        self._initial = gtsam.Values()
-        self._batch_result: gtsam.Values | None = None
-        #: Levenberg-Marquardt iterations of the last batch solve.
-        self.iterations = 0
-        # fixed-lag: smoother timestamps, frames still in the window (positions), and the
-        # frozen ones.
-        self._stamps: list[float] = []
-        self._window: deque[int] = deque()
-        self._frozen: dict[int, tuple[gtsam.Pose3, np.ndarray, np.ndarray | None]] = {}
+
+    @property
+    def iterations(self) -> int:
+        """Levenberg-Marquardt iterations of the last batch solve (0 for the other solvers)."""
+        return getattr(self.backend, "iterations", 0)
 
     # -- noise models -----------------------------------------------------------------------
 
@@ -380,18 +292,6 @@ class FactorGraphSmoother(Estimator):
         return gtsam.noiseModel.Robust.Create(loss, gaussian)
 
     # -- per frame --------------------------------------------------------------------------
-
-    def _in_graph(self, index: int) -> bool:
-        """Whether X(index) is still a variable (always, except fixed-lag after it left)."""
-        return self._fixed_lag is None or index not in self._frozen
-
-    def _current_pose(self, index: int) -> gtsam.Pose3:
-        if self.solver == "batch":
-            return self._initial.atPose3(X(index))
-        if index in self._frozen:
-            return self._frozen[index][0]
-        assert self._isam is not None
-        return self._isam.calculateEstimatePose3(X(index))
 
     def _twist_nodes(
         self, k: int, t: float, meas: VelocityMeasurement
@@ -427,7 +327,7 @@ class FactorGraphSmoother(Estimator):
             indices = [candidates[i] for i, _ in nodes]
             weights = [w for _, w in nodes]
         for index in indices:
-            if index != k and not self._in_graph(index):
+            if index != k and not self.backend.in_graph(index):
                 raise InputError(
                     f"frame {k}: the velocity interval [{start:.6g}, {end:.6g}] s reaches frame "
                     f"{index}, which already left the fixed-lag window ({self.lag} s); "
@@ -435,20 +335,62 @@ class FactorGraphSmoother(Estimator):
                 )
         return indices, weights
 
-    def _update(self, frame: FrameMeasurement) -> StateEstimate:
+    def _checked_frame(
+        self, frame: FrameMeasurement
+    ) -> tuple[int, float, tuple[gtsam.Pose3, np.ndarray, int] | None, _TwistMeasurement | None]:
+        """(k, t, checked pose, checked twist with its nodes): every check before any change."""
         k, t = as_integer(frame.index, "frame.index", 0), float(frame.t)
         if not math.isfinite(t):
             raise InputError(f"frame {k}: t is not finite ({frame.t})")
         pose_meas = None if frame.pose is None else _checked_pose(frame.pose, k)
-        twist_meas = None if frame.velocity is None else _checked_velocity(frame.velocity, k)
+        velocity = None if frame.velocity is None else _checked_velocity(frame.velocity, k)
         if pose_meas is not None and pose_meas[2] != 0 and pose_meas[2] not in self._position:
             raise InputError(
                 f"frame {k}: pose.reference {pose_meas[2]} is not an earlier frame of this sequence"
             )
-        twist_nodes = None
-        if twist_meas is not None:
+        twist_meas = None
+        if velocity is not None:
             assert frame.velocity is not None
-            twist_nodes = self._twist_nodes(k, t, frame.velocity)
+            twist_meas = (*velocity, *self._twist_nodes(k, t, frame.velocity))
+        return k, t, pose_meas, twist_meas
+
+    def _add_pose_factor(
+        self,
+        graph: gtsam.NonlinearFactorGraph,
+        k: int,
+        pose: PoseMeasurement,
+        pose_meas: tuple[gtsam.Pose3, np.ndarray, int],
+    ) -> gtsam.Pose3:
+        """The H_d factor of frame k (prior, between, or keyframe between); its pose value."""
+        measured, cov, ref = pose_meas
+        noise = self._measurement_noise(cov)
+        if ref == 0:
+            graph.add(gtsam.PriorFactorPose3(X(k), measured, noise))
+            return measured
+        keyframe_model = _keyframe_model(pose, k)
+        reference = self.backend.current_pose(ref)
+        measured_here = (
+            measured
+            if keyframe_model is None
+            else replace_keyframe_plane(measured, *keyframe_model, reference)
+        )
+        pose_guess = reference.compose(measured_here)
+        if self.backend.in_graph(ref) and keyframe_model is not None:
+            graph.add(
+                keyframe_between_factor(
+                    X(ref), X(k), measured, keyframe_model[0], keyframe_model[1], noise
+                )
+            )
+        elif self.backend.in_graph(ref):
+            graph.add(gtsam.BetweenFactorPose3(X(ref), X(k), measured, noise))
+        else:
+            # fixed-lag, keyframe already out of the window: its frozen estimate
+            # becomes the reference (its own uncertainty is not propagated).
+            graph.add(gtsam.PriorFactorPose3(X(k), pose_guess, noise))
+        return pose_guess
+
+    def _update(self, frame: FrameMeasurement) -> StateEstimate:
+        k, t, pose_meas, twist_meas = self._checked_frame(frame)
         # Everything is checked: from here on the state changes.
 
         graph = gtsam.NonlinearFactorGraph()
@@ -474,67 +416,23 @@ class FactorGraphSmoother(Estimator):
         twist_guess = twist_meas[0] if twist_meas is not None and use_measured else self._twist
         pose_guess: gtsam.Pose3 | None = None
         if pose_meas is not None:
-            measured, cov, ref = pose_meas
-            noise = self._measurement_noise(cov)
-            if ref == 0:
-                graph.add(gtsam.PriorFactorPose3(X(k), measured, noise))
-                pose_guess = measured
-            else:
-                keyframe_model = _keyframe_model(frame.pose, k)
-                measured_here = (
-                    measured
-                    if keyframe_model is None
-                    else replace_keyframe_plane(measured, *keyframe_model, self._current_pose(ref))
-                )
-                pose_guess = self._current_pose(ref).compose(measured_here)
-                if self._in_graph(ref) and keyframe_model is not None:
-                    graph.add(
-                        keyframe_between_factor(
-                            X(ref), X(k), measured, keyframe_model[0], keyframe_model[1], noise
-                        )
-                    )
-                elif self._in_graph(ref):
-                    graph.add(gtsam.BetweenFactorPose3(X(ref), X(k), measured, noise))
-                else:
-                    # fixed-lag, keyframe already out of the window: its frozen estimate
-                    # becomes the reference (its own uncertainty is not propagated).
-                    graph.add(gtsam.PriorFactorPose3(X(k), pose_guess, noise))
+            assert frame.pose is not None
+            pose_guess = self._add_pose_factor(graph, k, frame.pose, pose_meas)
         if first:
             pose_guess = gtsam.Pose3()
         elif pose_guess is None or not use_measured:
             pose_guess = self._pose.compose(
                 gtsam.Pose3.Expmap((0.5 * dt) * (self._twist + twist_guess))
             )
-        if twist_meas is not None and twist_nodes is not None:
-            indices, weights = twist_nodes
-            noise = self._measurement_noise(twist_meas[1])
-            graph.add(_mean_velocity_factor([V(i) for i in indices], weights, twist_meas[0], noise))
+        if twist_meas is not None:
+            z, cov, indices, weights = twist_meas
+            noise = self._measurement_noise(cov)
+            graph.add(_mean_velocity_factor([V(i) for i in indices], weights, z, noise))
 
         values = gtsam.Values()
         values.insert(X(k), pose_guess)
         values.insert(V(k), twist_guess)
-
-        covariance: np.ndarray | None = None
-        if self.solver == "batch":
-            self._graph.push_back(graph)
-            self._initial.insert(values)
-            self._batch_result = None
-            pose, twist = pose_guess, np.array(twist_guess, dtype=float)
-        else:
-            assert self._isam is not None
-            if self._fixed_lag is not None:
-                stamp = self._stamp(t)
-                self._stamps.append(stamp)
-                self._freeze_leaving(stamp)
-                self._fixed_lag.update(graph, values, {X(k): stamp, V(k): stamp})
-                self._window.append(self._position[k])
-                self._collect_frozen()
-            else:
-                self._isam.update(graph, values)
-            pose = self._isam.calculateEstimatePose3(X(k))
-            twist = self._isam.calculateEstimateVector(V(k))
-            if self.compute_covariance:
-                covariance = self._joint_covariance(k)
+        pose, twist, covariance = self.backend.add(graph, values, k, t - self._times[0])
         self._pose, self._twist = pose, twist
         return StateEstimate(
             index=k,
@@ -544,54 +442,6 @@ class FactorGraphSmoother(Estimator):
             twist=np.asarray(twist, dtype=float),
             covariance=covariance,
         )
-
-    def _joint_covariance(self, index: int) -> np.ndarray:
-        assert self._isam is not None
-        c = self._isam.jointMarginalCovariance([X(index), V(index)]).fullMatrix()
-        return 0.5 * (c + c.T)
-
-    # -- fixed-lag window -------------------------------------------------------------------
-
-    def _stamp(self, t: float) -> float:
-        """The smoother timestamp of time t: relative to the first frame, rounded down to a
-        multiple of the block length lag / MARGINALIZATION_BLOCKS."""
-        block = self.lag / MARGINALIZATION_BLOCKS
-        return math.floor((t - self._times[0]) / block + 1e-9) * block
-
-    def _freeze_leaving(self, stamp: float) -> None:
-        """Record the current estimate of every frame the coming update will marginalize.
-
-        IncrementalFixedLagSmoother drops the variables with timestamp < (latest
-        timestamp) - lag after adding the new factors. (Should a frame recorded
-        here be kept after all, it is recorded again at the next update: see
-        :meth:`_collect_frozen`.)
-        """
-        assert self._isam is not None
-        horizon = stamp - self._smoother_lag
-        values: gtsam.Values | None = None
-        for pos in self._window:
-            if self._stamps[pos] >= horizon:
-                break
-            if values is None:
-                # A full back-substitution: the per-key estimates use ISAM2's wildfire-
-                # limited delta, which can be stale far from the root, where these are.
-                values = self._isam.calculateBestEstimate()
-            index = self._indices[pos]
-            cov = self._joint_covariance(index) if self.compute_covariance else None
-            self._frozen[index] = (values.atPose3(X(index)), values.atVector(V(index)), cov)
-
-    def _collect_frozen(self) -> None:
-        """Drop the marginalized frames from the window; forget records of frames kept."""
-        assert self._isam is not None
-        while self._window:
-            index = self._indices[self._window[0]]
-            if self._isam.valueExists(X(index)):
-                break
-            self._window.popleft()
-        for pos in self._window:
-            if self._indices[pos] not in self._frozen:
-                break
-            del self._frozen[self._indices[pos]]
 
     # -- results ----------------------------------------------------------------------------
 
@@ -604,41 +454,13 @@ class FactorGraphSmoother(Estimator):
         covariances = np.empty((n, 12, 12)) if self.compute_covariance else None
         if n == 0:
             return Trajectory(np.empty(0), rotations, positions, twists, covariances)
-
-        def put(i: int, pose: gtsam.Pose3, twist: np.ndarray) -> None:
+        for i, (pose, twist, cov) in enumerate(self.backend.final(self._indices)):
             rotations[i] = pose.rotation().matrix()
             positions[i] = pose.translation()
             twists[i] = twist
-
-        if self.solver == "batch":
-            values = self._batch_values()
-            # One ISAM2 elimination at the optimum gives the joint marginals quickly
-            # (gtsam.Marginals took O(N) per query here); its linearization point is
-            # held (second item) so the custom factors are not handed copies.
-            marginals: tuple[gtsam.ISAM2, gtsam.Values] | None = None
-            if self.compute_covariance:
-                isam = gtsam.ISAM2()
-                marginals = (isam, isam.getLinearizationPoint())
-                isam.update(self._graph, values)
-            for i, index in enumerate(self._indices):
-                put(i, values.atPose3(X(index)), values.atVector(V(index)))
-                if marginals is not None and covariances is not None:
-                    c = marginals[0].jointMarginalCovariance([X(index), V(index)]).fullMatrix()
-                    covariances[i] = 0.5 * (c + c.T)
-        else:
-            assert self._isam is not None
-            values = self._isam.calculateBestEstimate()
-            for i, index in enumerate(self._indices):
-                if index in self._frozen:
-                    pose, twist, cov = self._frozen[index]
-                    put(i, pose, twist)
-                    if covariances is not None:
-                        assert cov is not None
-                        covariances[i] = cov
-                    continue
-                put(i, values.atPose3(X(index)), values.atVector(V(index)))
-                if covariances is not None:
-                    covariances[i] = self._joint_covariance(index)
+            if covariances is not None:
+                assert cov is not None
+                covariances[i] = cov
         return Trajectory(
             t=np.array(self._times),
             rotations=rotations,
@@ -646,13 +468,6 @@ class FactorGraphSmoother(Estimator):
             twists=twists,
             covariances=covariances,
         )
-
-    def _batch_values(self) -> gtsam.Values:
-        if self._batch_result is None:
-            self._batch_result, self.iterations = levenberg_marquardt(
-                self._graph, self._initial, max_iterations=self.max_iterations
-            )
-        return self._batch_result
 
 
 class BatchSmoother(FactorGraphSmoother):
