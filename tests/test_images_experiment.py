@@ -18,7 +18,10 @@ from script_helpers import load_script, png_size
 
 from hvo_graph.errors import InputError
 from hvo_graph.estimators.registry import METHOD_TITLES
+from hvo_graph.eval.consistency import keyframe_switches, pose_nees, track_error
+from hvo_graph.image_runs import run_image_seed
 from hvo_graph.report.plotting import FIGURE_DPI
+from hvo_graph.sim.images import check_view, ground_truth
 from hvo_graph.types import FrameMeasurement, FrameObservations, PoseMeasurement, Trajectory
 
 images = load_script("images")
@@ -39,7 +42,7 @@ def quick_run(tmp_path_factory):
 def quick_result():
     """The --quick configuration of seed 0, run through the library function."""
     config = images.ImageRunConfig(duration=images.QUICK_DURATION, camera=images.quick_camera())
-    return images.run_image_seed(config, keep=True)
+    return run_image_seed(config, images.METHODS, keep=True)
 
 
 def table_rows(markdown: str, heading: str) -> list[list[str]]:
@@ -114,7 +117,7 @@ def test_quick_run_switches_keyframes_and_the_smoother_stays_accurate(quick_resu
 def test_ground_truth_twists_are_the_derivative_of_the_ground_truth_poses() -> None:
     """Central differences of the integrated poses against the generating twist."""
     config = images.ImageRunConfig(duration=4.0, camera=images.quick_camera())
-    truth = images.ground_truth(config.motion())
+    truth = ground_truth(config.motion())
     dt = truth.t[1] - truth.t[0]
     poses = [
         gtsam.Pose3(gtsam.Rot3(R), p) for R, p in zip(truth.rotations, truth.positions, strict=True)
@@ -134,17 +137,15 @@ def _trajectory(rotations: list[np.ndarray], positions: list[np.ndarray]) -> Tra
 
 def test_view_check_accepts_the_runs_and_names_the_frame_that_fails() -> None:
     camera, plane = images.quick_camera(), images.ImageRunConfig().motion().plane
-    truth = images.ground_truth(
-        images.ImageRunConfig(duration=1.0, camera=camera, skip=0.0).motion()
-    )
-    low, high = images.check_view(camera, plane, truth)
+    truth = ground_truth(images.ImageRunConfig(duration=1.0, camera=camera, skip=0.0).motion())
+    low, high = check_view(camera, plane, truth)
     assert 1.5 < low <= high < 2.5
     tilt = gtsam.Rot3.Rx(-1.45).matrix()  # looking up past the plane's horizon
     with pytest.raises(InputError, match=r"frame 1 \(t = 0.033 s\): an image corner looks past"):
-        images.check_view(camera, plane, _trajectory([np.eye(3), tilt], [np.zeros(3)] * 2))
+        check_view(camera, plane, _trajectory([np.eye(3), tilt], [np.zeros(3)] * 2))
     behind = [np.zeros(3), np.array([0.0, 0.0, 2.5])]  # through the plane (d* = 2 m along z)
     with pytest.raises(InputError, match=r"frame 1 .*: the camera is not in front of the plane"):
-        images.check_view(camera, plane, _trajectory([np.eye(3)] * 2, behind))
+        check_view(camera, plane, _trajectory([np.eye(3)] * 2, behind))
 
 
 def test_track_error_is_the_rms_reprojection_error_against_the_first_sighting() -> None:
@@ -173,13 +174,13 @@ def test_track_error_is_the_rms_reprojection_error_against_the_first_sighting() 
     )
     ids = np.arange(6)
     exact = [FrameObservations(k, k / 30.0, ids, pixels(p)) for k, p in enumerate(poses)]
-    assert images.track_error(exact, truth, camera, plane) == pytest.approx(0.0, abs=1e-9)
+    assert track_error(exact, truth, camera, plane) == pytest.approx(0.0, abs=1e-9)
     # one observation off by 0.3 px in u: 12 later observations (24 coordinates)
     shifted = exact[2].uv.copy()
     shifted[4, 0] += 0.3
     noisy = [*exact[:2], FrameObservations(2, exact[2].t, ids, shifted)]
     expected = math.sqrt(0.3**2 / 24)
-    assert images.track_error(noisy, truth, camera, plane) == pytest.approx(expected, rel=1e-6)
+    assert track_error(noisy, truth, camera, plane) == pytest.approx(expected, rel=1e-6)
 
 
 def test_pose_nees_splits_frame_zero_and_keyframe_references() -> None:
@@ -206,11 +207,11 @@ def test_pose_nees_splits_frame_zero_and_keyframe_references() -> None:
         FrameMeasurement(2, 2 / 30, None),
         FrameMeasurement(3, 3 / 30, measured(3, 1)),
     ]
-    world, keyframe = images.pose_nees(frames, truth)
+    world, keyframe = pose_nees(frames, truth)
     inv = np.linalg.inv(cov)
     assert world == pytest.approx(deltas[1] @ inv @ deltas[1], rel=1e-6)
     assert keyframe == pytest.approx(deltas[3] @ inv @ deltas[3], rel=1e-6)
-    assert images.keyframe_switches(frames) == ([3], [1])
+    assert keyframe_switches(frames) == ([3], [1])
 
 
 def test_bad_options_are_reported(capsys) -> None:

@@ -243,3 +243,10 @@ def format_table(summaries: dict[str, ErrorSummary]) -> str:
         cells = [r[0].ljust(widths[0])] + [r[c].rjust(widths[c]) for c in range(1, len(r))]
         lines.append("  ".join(cells).rstrip())
     return "\n".join(lines)
+
+
+def position_rmse_between(series: ErrorSeries, start: float, stop: float) -> float | None:
+    """RMSE of the position error over frames with start <= t < stop (None: no frame)."""
+    keep = (series.t >= start - 1e-9) & (series.t < stop - 1e-9)
+    e = series.position[keep]
+    return float(math.sqrt(np.mean(e**2))) if e.size else None

@@ -140,3 +140,14 @@ def save_figure(fig: Figure, path_without_ext: str | Path, *, dpi: int = FIGURE_
             os.replace(tmp, final)
             written.append(final)
     return written
+
+
+def save_png(fig: Figure, path: str | Path, *, dpi: int = FIGURE_DPI) -> Path:
+    """Write ``fig`` as ``<path>.png`` only, atomically; creates the folder."""
+    path = Path(path).with_suffix(".png")
+    path.parent.mkdir(parents=True, exist_ok=True)
+    tmp = path.with_name(f".{path.stem}.{os.getpid()}.tmp.png")
+    with figure_style():
+        fig.savefig(tmp, format="png", dpi=dpi, metadata={"Software": None})
+    os.replace(tmp, path)
+    return path

@@ -1,0 +1,81 @@
+"""Consistency of the front end against ground truth: track error, pose NEES, keyframes.
+
+Functions of measurement records and trajectories only.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Sequence
+
+import gtsam
+import numpy as np
+
+from hvo_graph.geometry.camera import CameraModel
+from hvo_graph.types import FrameMeasurement, FrameObservations, Plane, Trajectory
+
+
+def track_error(
+    tracks: Sequence[FrameObservations], truth: Trajectory, camera: CameraModel, plane: Plane
+) -> float:
+    """RMS per coordinate (pixels) of every observation after a track's first one.
+
+    Each track's plane point is its first observation back-projected through the true
+    pose (ray-plane intersection); later observations are compared with that point's
+    projection through the true poses. This is the error the front end sees: a pose is
+    measured from where the points are now against where they were in the reference.
+    """
+    n, d = np.asarray(plane.normal, dtype=float), plane.distance
+    first: dict[int, np.ndarray] = {}
+    squared, count = 0.0, 0
+    for obs in tracks:
+        R_wc, p_wc = truth.rotations[obs.index], truth.positions[obs.index]
+        ids = np.asarray(obs.ids).tolist()
+        rays = camera.pixel_to_normalized(np.asarray(obs.uv, dtype=float)) @ R_wc.T
+        known = np.array([i in first for i in ids], dtype=bool)
+        for i, ray in zip(np.asarray(ids)[~known], rays[~known], strict=True):
+            first[int(i)] = p_wc + (d - n @ p_wc) / (n @ ray) * ray
+        if known.any():
+            X = np.array([first[i] for i, k in zip(ids, known, strict=True) if k])
+            uv = camera.project((X - p_wc) @ R_wc)
+            diff = uv - np.asarray(obs.uv, dtype=float)[known]
+            squared += float(np.sum(diff**2))
+            count += diff.size
+    return math.sqrt(squared / count) if count else float("nan")
+
+
+def pose_nees(frames: Sequence[FrameMeasurement], truth: Trajectory) -> tuple[float | None, ...]:
+    """Mean NEES of the pose measurements against frame 0 and against keyframes.
+
+    delta = Log(T_meas^-1 T_true) with T the pose in the reference frame (right
+    perturbation, the covariance's convention), NEES = delta^T C^-1 delta; 6 on average
+    when the covariance C describes the error. Frame 0 itself (exact by construction)
+    is left out.
+
+    Returns:
+        (mean NEES against frame 0, mean NEES against keyframes); None where no frame.
+    """
+    poses = [
+        gtsam.Pose3(gtsam.Rot3(R), p) for R, p in zip(truth.rotations, truth.positions, strict=True)
+    ]
+    world, keyframe = [], []
+    for f in frames:
+        if f.pose is None or f.index == f.pose.reference:
+            continue
+        measured = gtsam.Pose3(gtsam.Rot3(f.pose.rotation), np.asarray(f.pose.position))
+        true_relative = poses[f.pose.reference].between(poses[f.index])
+        delta = gtsam.Pose3.Logmap(measured.between(true_relative))
+        value = float(delta @ np.linalg.solve(f.pose.covariance, delta))
+        (world if f.pose.reference == 0 else keyframe).append(value)
+    return tuple(float(np.mean(v)) if v else None for v in (world, keyframe))
+
+
+def keyframe_switches(frames: Sequence[FrameMeasurement]) -> tuple[list[int], list[int]]:
+    """(first frame against each new keyframe, the keyframes), in time order."""
+    switches, keyframes, current = [], [], 0
+    for f in frames:
+        if f.pose is not None and f.pose.reference != current:
+            current = f.pose.reference
+            switches.append(f.index)
+            keyframes.append(current)
+    return switches, keyframes
