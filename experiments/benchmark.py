@@ -558,66 +558,16 @@ def _fastest(name: str, frames: Sequence[FrameMeasurement], repeat: int) -> Timi
     return best
 
 
-def main(argv: Sequence[str] | None = None) -> int:
-    """Command line; see the module docstring. Returns the exit code."""
-    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--sizes", type=int, nargs="+", help="sequence lengths, frames")
-    parser.add_argument("--quick", action="store_true", help="300 and 1,000 frames, short profile")
-    parser.add_argument(
-        "--components",
-        nargs="+",
-        choices=list(COMPONENTS),
-        default=list(DEFAULT_COMPONENTS),
-        help="what to benchmark (isam2-cov: ISAM2 with a marginal covariance per frame)",
-    )
-    parser.add_argument("--batch-max-frames", type=int, default=DEFAULT_BATCH_MAX_FRAMES)
-    parser.add_argument(
-        "--profile-frames",
-        type=int,
-        help=f"frames of the profile (default {DEFAULT_PROFILE_FRAMES}, --quick 300, 0 none)",
-    )
-    parser.add_argument(
-        "--profile-component",
-        choices=[c for c in COMPONENTS if c != "frontend"],
-        default="isam2",
-        help="estimator to profile (default isam2)",
-    )
-    parser.add_argument("--no-memory", action="store_true", help="skip the memory subprocesses")
-    parser.add_argument("--repeat", type=int, default=1, help="keep the fastest of N timed runs")
-    parser.add_argument("--seed", type=int, default=0, help="pixel-noise seed")
-    parser.add_argument("--out", type=Path, default=Path("docs/performance.md"))
-    parser.add_argument(
-        "--memory-worker", nargs=2, metavar=("COMPONENT", "INPUTS"), help=argparse.SUPPRESS
-    )
-    args = parser.parse_args(argv)
-
-    if args.memory_worker is not None:
-        component, inputs = args.memory_worker
-        print(json.dumps(memory_worker(component, Path(inputs))))
-        return 0
-
-    started = time.perf_counter()
-    command = "python experiments/benchmark.py" + (
-        " " + shlex.join(sys.argv[1:] if argv is None else list(argv))
-        if (sys.argv[1:] if argv is None else argv)
-        else ""
-    )
-    try:
-        sizes = _positive_sizes(args.sizes or (QUICK_SIZES if args.quick else DEFAULT_SIZES))
-        if args.repeat < 1:
-            raise InputError(f"--repeat: expected an integer >= 1, got {args.repeat}")
-        profile_frames = args.profile_frames
-        if profile_frames is None:
-            profile_frames = 300 if args.quick else DEFAULT_PROFILE_FRAMES
-        if profile_frames < 0:
-            raise InputError(f"--profile-frames: expected >= 0, got {profile_frames}")
-    except InputError as error:
-        print(f"benchmark: error: {error}", file=sys.stderr)
-        return 2
-    components = [c for c in COMPONENTS if c in args.components]
-    memory = not args.no_memory
-    machine = machine_description()
-
+def run_sizes(
+    sizes: Sequence[int],
+    components: Sequence[str],
+    args: argparse.Namespace,
+    *,
+    memory: bool,
+    profile_frames: int,
+) -> tuple[list[Timing], list[tuple[str, int]], list[FrameMeasurement] | None]:
+    """Time every component at every size: (timings, skipped (component, size), the
+    measurements of the profile's size when it is one of the sizes)."""
     timings: list[Timing] = []
     skipped: list[tuple[str, int]] = []
     profile_input: list[FrameMeasurement] | None = None
@@ -659,6 +609,78 @@ def main(argv: Sequence[str] | None = None) -> int:
             if n == profile_frames:
                 profile_input = frames
             del frames, scenario  # 30,000 frames of records are not small
+
+    return timings, skipped, profile_input
+
+
+def build_parser() -> argparse.ArgumentParser:
+    """The command line (see the module docstring)."""
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--sizes", type=int, nargs="+", help="sequence lengths, frames")
+    parser.add_argument("--quick", action="store_true", help="300 and 1,000 frames, short profile")
+    parser.add_argument(
+        "--components",
+        nargs="+",
+        choices=list(COMPONENTS),
+        default=list(DEFAULT_COMPONENTS),
+        help="what to benchmark (isam2-cov: ISAM2 with a marginal covariance per frame)",
+    )
+    parser.add_argument("--batch-max-frames", type=int, default=DEFAULT_BATCH_MAX_FRAMES)
+    parser.add_argument(
+        "--profile-frames",
+        type=int,
+        help=f"frames of the profile (default {DEFAULT_PROFILE_FRAMES}, --quick 300, 0 none)",
+    )
+    parser.add_argument(
+        "--profile-component",
+        choices=[c for c in COMPONENTS if c != "frontend"],
+        default="isam2",
+        help="estimator to profile (default isam2)",
+    )
+    parser.add_argument("--no-memory", action="store_true", help="skip the memory subprocesses")
+    parser.add_argument("--repeat", type=int, default=1, help="keep the fastest of N timed runs")
+    parser.add_argument("--seed", type=int, default=0, help="pixel-noise seed")
+    parser.add_argument("--out", type=Path, default=Path("docs/performance.md"))
+    parser.add_argument(
+        "--memory-worker", nargs=2, metavar=("COMPONENT", "INPUTS"), help=argparse.SUPPRESS
+    )
+    return parser
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    """Command line; see the module docstring. Returns the exit code."""
+    args = build_parser().parse_args(argv)
+
+    if args.memory_worker is not None:
+        component, inputs = args.memory_worker
+        print(json.dumps(memory_worker(component, Path(inputs))))
+        return 0
+
+    started = time.perf_counter()
+    command = "python experiments/benchmark.py" + (
+        " " + shlex.join(sys.argv[1:] if argv is None else list(argv))
+        if (sys.argv[1:] if argv is None else argv)
+        else ""
+    )
+    try:
+        sizes = _positive_sizes(args.sizes or (QUICK_SIZES if args.quick else DEFAULT_SIZES))
+        if args.repeat < 1:
+            raise InputError(f"--repeat: expected an integer >= 1, got {args.repeat}")
+        profile_frames = args.profile_frames
+        if profile_frames is None:
+            profile_frames = 300 if args.quick else DEFAULT_PROFILE_FRAMES
+        if profile_frames < 0:
+            raise InputError(f"--profile-frames: expected >= 0, got {profile_frames}")
+    except InputError as error:
+        print(f"benchmark: error: {error}", file=sys.stderr)
+        return 2
+    components = [c for c in COMPONENTS if c in args.components]
+    memory = not args.no_memory
+    machine = machine_description()
+
+    timings, skipped, profile_input = run_sizes(
+        sizes, components, args, memory=memory, profile_frames=profile_frames
+    )
 
     profile = None
     if profile_frames:

@@ -17,18 +17,20 @@ from hypothesis import assume, given, settings
 from hypothesis import strategies as st
 
 from hvo_graph.errors import InputError
-from hvo_graph.geometry.discrete import (
+from hvo_graph.geometry.decomposition import (
     HomographySolution,
-    camera_pose_from_motion,
     check_points_in_front,
     decompose_homography,
+    motion_from_homography_known_normal,
+    physically_valid_solutions,
+    select_solution,
+)
+from hvo_graph.geometry.discrete import (
+    camera_pose_from_motion,
     estimate_homography,
     euclidean_homography,
     homography_from_motion,
     motion_from_camera_pose,
-    motion_from_homography_known_normal,
-    physically_valid_solutions,
-    select_solution,
 )
 from hvo_graph.geometry.rotation import rot_y
 

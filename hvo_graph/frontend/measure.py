@@ -48,13 +48,15 @@ from hvo_graph.geometry.continuous import (
     velocity_design_matrix,
     velocity_known_normal,
 )
-from hvo_graph.geometry.discrete import (
-    camera_pose_from_motion,
+from hvo_graph.geometry.decomposition import (
     decompose_homography,
-    estimate_homography,
-    euclidean_homography,
     motion_from_homography_known_normal,
     physically_valid_solutions,
+)
+from hvo_graph.geometry.discrete import (
+    camera_pose_from_motion,
+    estimate_homography,
+    euclidean_homography,
 )
 from hvo_graph.geometry.transfer import (
     keyframe_plane_jacobian,

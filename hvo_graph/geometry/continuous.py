@@ -28,11 +28,13 @@ from dataclasses import dataclass
 import numpy as np
 
 from hvo_graph.errors import InputError, as_matrix, as_points, as_vector
+from hvo_graph.geometry.decomposition import (
+    select_solution,
+)
 from hvo_graph.geometry.discrete import (
     DEGENERACY_TOL,
     normalized_points,
     positive_distance,
-    select_solution,
     unit_normal,
 )
 from hvo_graph.geometry.rotation import skew
