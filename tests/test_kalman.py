@@ -528,29 +528,6 @@ def test_measured_r_on_noisy_records_filters_the_noise():
 # -- the paper's two runs (simulation + front end) ---------------------------------------
 
 
-@pytest.fixture(scope="module")
-def noise_free_run():
-    from hvo_graph.frontend import measure_sequence
-    from hvo_graph.sim.scenario import paper_scenario, simulate
-
-    scenario = simulate(paper_scenario(noisy=False))
-    # the front end needs a pixel sigma > 0 for its covariances; unused with paper R
-    return scenario, measure_sequence(
-        scenario.observations, scenario.camera, scenario.plane, pixel_sigma=1e-3
-    )
-
-
-@pytest.fixture(scope="module")
-def noisy_run():
-    from hvo_graph.frontend import measure_sequence
-    from hvo_graph.sim.scenario import paper_scenario, simulate
-
-    scenario = simulate(paper_scenario(noisy=True, seed=0))
-    return scenario, measure_sequence(
-        scenario.observations, scenario.camera, scenario.plane, pixel_sigma=scenario.pixel_sigma
-    )
-
-
 def test_noise_free_run_converges_from_a_random_start(noise_free_run):
     from hvo_graph.eval.metrics import error_series, summarize
 

@@ -52,11 +52,6 @@ def rk4_poses(times: np.ndarray, step: float) -> tuple[np.ndarray, np.ndarray]:
     return np.array(Rs), np.array(ps)
 
 
-@pytest.fixture(scope="module")
-def paper() -> object:
-    return simulate()
-
-
 def test_defaults_are_the_documented_paper_scenario(paper):
     c = paper.config
     assert (c.fps, c.duration, c.noise_var, c.num_points) == (30.0, 10.0, 0.05, 4)

@@ -578,14 +578,11 @@ def test_fixed_lag_values_are_the_smoothed_values_when_they_left(paper_truth):
 # -- the paper's scenario through the front end ---------------------------------------------
 
 
-def test_paper_noise_free_run_is_recovered():
-    scenario = simulate(paper_scenario(noisy=False, seed=0))
+def test_paper_noise_free_run_is_recovered(noise_free_run):
     # Noise-free data are given a small pixel sigma, as the paper gives its filter the
     # small noise-free R: with the noisy run's 0.22 px the white-noise-acceleration
     # prior would bias the smooth truth by ~4 mm (docs/smoother.md).
-    frames = measure_sequence(
-        scenario.observations, scenario.camera, scenario.plane, pixel_sigma=1e-3
-    )
+    scenario, frames = noise_free_run
     for solver in SOLVERS:
         trajectory = FactorGraphSmoother(solver=solver).run(frames)
         series = error_series(trajectory, scenario.groundtruth)
