@@ -76,6 +76,10 @@ class PoseMeasurement:
             perturbation xi_rc) moves when the assumed T_wr is right-perturbed by
             xi_wr (through the plane only). An estimator whose keyframe estimate is
             T_wr_hat uses T_rc Exp(J Log(T_wr^-1 T_wr_hat)); None for reference 0.
+        reference_covariance: (6, 6) the part of ``covariance`` due to the reference
+            frame's pixel noise (shared by every pose measured against the same
+            reference); ``covariance - reference_covariance`` is the part due to this
+            frame's own pixels. None when not known.
     """
 
     rotation: np.ndarray
@@ -85,6 +89,7 @@ class PoseMeasurement:
     reference_rotation: np.ndarray | None = None
     reference_position: np.ndarray | None = None
     plane_jacobian: np.ndarray | None = None
+    reference_covariance: np.ndarray | None = None
 
 
 @dataclass(frozen=True)

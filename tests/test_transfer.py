@@ -3,6 +3,7 @@ checked against finite differences."""
 
 from __future__ import annotations
 
+import gtsam
 import numpy as np
 import pytest
 
@@ -10,6 +11,7 @@ from hvo_graph.errors import InputError
 from hvo_graph.geometry.rotation import euler_to_rotation
 from hvo_graph.geometry.transfer import (
     linearize_transfer,
+    pose_covariance_parts,
     pose_normal_equations,
     projection_jacobian,
     retract_motion,
@@ -70,3 +72,34 @@ def test_a_point_behind_the_camera_is_refused():
     m_ref, m_cur = points()
     with pytest.raises(InputError, match="non-positive depth"):
         linearize_transfer(R, np.array([0.0, 0.0, -10.0]), m_ref, m_cur, PLANE, 1e-3)
+
+
+def test_covariance_parts_match_monte_carlo_of_each_frames_noise():
+    """Noise on the reference points only, then on the current points only: the scatter of
+    the refined pose matches C_ref and C_cur, and together they are the total info^-1."""
+    m_ref, _ = points(n=6, seed=3)
+    sigma = 1e-3
+    X = PLANE.distance * m_ref / (m_ref @ PLANE.normal)[:, None] @ R.T + T
+    clean = X / X[:, 2:]
+    truth = gtsam.Pose3(gtsam.Rot3(R.T), -R.T @ T)
+
+    def refined(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+        Rk, Tk = R, T
+        for _ in range(4):
+            info, grad = pose_normal_equations(Rk, Tk, a, b, PLANE, sigma)
+            Rk, Tk = retract_motion(Rk, Tk, np.linalg.solve(info, grad))
+        # Log(T_wc_true^-1 T_wc): the right-perturbation tangent the covariances use
+        return gtsam.Pose3.Logmap(truth.between(gtsam.Pose3(gtsam.Rot3(Rk.T), -Rk.T @ Tk)))
+
+    rng = np.random.default_rng(7)
+
+    def noisy(m: np.ndarray) -> np.ndarray:
+        return np.column_stack((m[:, :2] + sigma * rng.standard_normal((len(m), 2)), m[:, 2]))
+
+    ref_errors = np.array([refined(noisy(m_ref), clean) for _ in range(600)])
+    cur_errors = np.array([refined(m_ref, noisy(clean)) for _ in range(600)])
+    current, reference = pose_covariance_parts(R, T, m_ref, clean, PLANE, sigma)
+    info, _ = pose_normal_equations(R, T, m_ref, clean, PLANE, sigma)
+    np.testing.assert_allclose(current + reference, np.linalg.inv(info), rtol=1e-8, atol=1e-14)
+    for errors, covariance in ((ref_errors, reference), (cur_errors, current)):
+        np.testing.assert_allclose(np.std(errors, axis=0), np.sqrt(np.diag(covariance)), rtol=0.12)

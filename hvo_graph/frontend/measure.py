@@ -28,9 +28,13 @@ mean focal length):
 - velocity: s_f^2 (A^T A)^-1 of the 2N x 6 flow system with
   s_f^2 = 2 s^2 / dt^2 (two independent noisy frames per flow vector).
 
-Both ignore correlations between frames (the shared reference observations
-make all pose errors correlated; consecutive flows share a frame). See
-docs/method.md.
+The pose covariance is reported in two parts (``PoseMeasurement.reference_covariance``):
+the reference frame's pixel noise is one draw shared by every pose measured
+against that reference (their errors are correlated through it), the current
+frame's noise is independent from frame to frame
+(:func:`~hvo_graph.geometry.transfer.pose_covariance_parts`). Consecutive flows
+share a frame, and a flow shares its pixels with the two poses it lies
+between; the velocity covariance does not say so. See docs/method.md.
 """
 
 from __future__ import annotations
@@ -60,6 +64,7 @@ from hvo_graph.geometry.discrete import (
 )
 from hvo_graph.geometry.transfer import (
     keyframe_plane_jacobian,
+    pose_covariance_parts,
     pose_normal_equations,
     retract_motion,
 )
@@ -238,7 +243,7 @@ class MeasurementFrontEnd:
             delta = np.linalg.solve(info, grad)
             R, T = retract_motion(R, T, delta)
         R_rc, p_rc = camera_pose_from_motion(R, T)
-        covariance = np.linalg.inv(info)
+        current, reference = pose_covariance_parts(R, T, m_ref, m_cur, plane, self._sigma)
         keyframe: dict[str, np.ndarray] = {}
         if ref.index != self._world_index:
             # The plane in the keyframe comes from the keyframe's *measured* pose: say which
@@ -253,7 +258,12 @@ class MeasurementFrontEnd:
                 ),
             }
         pose = PoseMeasurement(
-            R_rc, p_rc, 0.5 * (covariance + covariance.T), reference=ref.index, **keyframe
+            R_rc,
+            p_rc,
+            current + reference,
+            reference=ref.index,
+            reference_covariance=reference,
+            **keyframe,
         )
         # Motion world -> current: X = R (R_ref X_w + T_ref) + T.
         return R @ ref.R, R @ ref.T + T, pose

@@ -50,6 +50,7 @@ class TransferLinearization:
         J: (N, 2, 6) d pi(X_i) / d[dtheta; dp], right perturbation of T_wc.
         JtW: (N, 6, 2) J_i^T Sigma_i^-1.
         residual: (N, 2) m_i[:2] - pi(X_i).
+        A: (N, 2, 2) d pi(X_i) / d m*_i[:2], how the reference observation moves the residual.
     """
 
     depth: np.ndarray
@@ -57,6 +58,7 @@ class TransferLinearization:
     J: np.ndarray
     JtW: np.ndarray
     residual: np.ndarray
+    A: np.ndarray
 
 
 def linearize_transfer(
@@ -98,7 +100,7 @@ def linearize_transfer(
     )
     A = P @ R @ dXstar[:, :, :2]  # (N, 2, 2)
     W = np.linalg.inv(sigma**2 * (np.eye(2)[None] + A @ np.transpose(A, (0, 2, 1))))
-    return TransferLinearization(depth, P, J, np.transpose(J, (0, 2, 1)) @ W, residual)
+    return TransferLinearization(depth, P, J, np.transpose(J, (0, 2, 1)) @ W, residual, A)
 
 
 def pose_normal_equations(
@@ -119,6 +121,39 @@ def pose_normal_equations(
     """
     lin = linearize_transfer(R, T, m_ref, m_cur, plane, sigma)
     return np.sum(lin.JtW @ lin.J, axis=0), np.einsum("nij,nj->i", lin.JtW, lin.residual)
+
+
+def pose_covariance_parts(
+    R: np.ndarray,
+    T: np.ndarray,
+    m_ref: np.ndarray,
+    m_cur: np.ndarray,
+    plane: Plane,
+    sigma: float,
+) -> tuple[np.ndarray, np.ndarray]:
+    """The pose covariance info^-1 at (R, T), split by where the pixel noise comes from.
+
+    At the Gauss-Newton optimum the pose error is delta = sum_i H_i (e_i - A_i e*_i),
+    H_i = info^-1 J_i^T Sigma_i^-1, with e_i the current and e*_i the reference
+    pixel noise (each sigma^2 I). So info^-1 = C_cur + C_ref with
+
+        C_cur = sigma^2 sum_i H_i H_i^T,   C_ref = sigma^2 sum_i (H_i A_i)(H_i A_i)^T.
+
+    C_ref is shared by every pose measured against the same reference frame
+    (one draw of e*): those poses' errors are correlated through it, while the
+    current parts are independent from frame to frame.
+
+    Arguments as :func:`linearize_transfer`.
+
+    Returns:
+        (C_cur, C_ref), each (6, 6) symmetric, tangent order [rot; trans].
+    """
+    lin = linearize_transfer(R, T, m_ref, m_cur, plane, sigma)
+    info = np.sum(lin.JtW @ lin.J, axis=0)
+    H = np.linalg.solve(info, np.concatenate(list(lin.JtW), axis=1))  # (6, 2N)
+    G = np.linalg.solve(info, np.concatenate(list(lin.JtW @ lin.A), axis=1))
+    current, reference = sigma**2 * (H @ H.T), sigma**2 * (G @ G.T)
+    return 0.5 * (current + current.T), 0.5 * (reference + reference.T)
 
 
 def keyframe_plane_jacobian(
