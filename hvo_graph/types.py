@@ -122,6 +122,8 @@ class FrameMeasurement:
         pose: pose from H_d (against frame 0 or a keyframe), or None.
         velocity: mid-interval twist from H_c (frames index-1 and index), or None.
         num_points: points observed in the frame.
+        num_rejected: of those, points the front end rejected as outliers (RANSAC,
+            the residual gate, or tracks already excluded as off the plane).
 
     ``pose`` or ``velocity`` is None when the frame had too few usable points;
     estimators then predict through the frame.
@@ -132,6 +134,7 @@ class FrameMeasurement:
     pose: PoseMeasurement | None = None
     velocity: VelocityMeasurement | None = None
     num_points: int = 0
+    num_rejected: int = 0
 
 
 @dataclass

@@ -211,7 +211,7 @@ def test_ippe_pose_solver_agrees_without_noise():
     assert np.allclose(frames[-1].pose.position, truth[-1].translation(), atol=1e-7)
 
 
-def test_ransac_rejects_an_outlier_track():
+def test_outlier_track_is_rejected_by_default_and_counted():
     rng = np.random.default_rng(8)
     points = plane_points(12, rng)
     truth = poses(8)
@@ -221,10 +221,16 @@ def test_ransac_rejects_an_outlier_track():
         uv = o.uv.copy()
         uv[0] += 40.0 * o.index  # one track drifting away from its plane point
         bad.append(FrameObservations(o.index, o.t, o.ids, uv))
-    plain = measure_sequence(bad, CAMERA, Plane(DISTANCE, NORMAL))
-    robust = measure_sequence(bad, CAMERA, Plane(DISTANCE, NORMAL), ransac_threshold_px=2.0)
+    plane = Plane(DISTANCE, NORMAL)
+    plain = measure_sequence(bad, CAMERA, plane, ransac=False, outlier_chi2=None)
+    front = MeasurementFrontEnd(CAMERA, plane, FrontEndConfig(pixel_sigma=0.2))
+    robust = [front.process(o) for o in bad]
     err = [np.linalg.norm(f[-1].pose.position - truth[-1].translation()) for f in (plain, robust)]
     assert err[1] < 0.01 < err[0]
+    # the drifting track (row 0) is rejected from frame 1 on, excluded after 3 rejections
+    assert [f.num_rejected for f in robust] == [0] + [1] * (len(bad) - 1)
+    assert front.excluded_tracks == {int(obs[0].ids[0])}
+    assert [f.num_rejected for f in plain] == [0] * len(bad)
 
 
 def test_bad_configuration_is_reported():

@@ -64,6 +64,7 @@ from hvo_graph.geometry.discrete import (
 )
 from hvo_graph.geometry.transfer import (
     keyframe_plane_jacobian,
+    linearize_transfer,
     pose_covariance_parts,
     pose_normal_equations,
     retract_motion,
@@ -82,6 +83,19 @@ DEFAULT_PIXEL_SIGMA = float(np.sqrt(0.05))
 #: Noise-free input still gets covariances from this pixel sigma (pixels).
 MIN_PIXEL_SIGMA = 1e-3
 
+#: Automatic RANSAC threshold: this many pixel sigmas of transfer distance. The
+#: distance between a transferred reference point and its current observation
+#: has standard deviation sigma sqrt(2) per axis (two noisy observations); 5 sigma
+#: is its 99.7 % quantile, so RANSAC keeps nearly every inlier.
+RANSAC_SIGMAS = 5.0
+
+#: The automatic RANSAC threshold is at least this many pixels (noise-free input).
+MIN_RANSAC_PX = 0.5
+
+#: Per-point gate after the pose refinement: chi^2 (2 dof) of the transfer residual
+#: under its covariance; 13.8 is the 99.9 % quantile.
+OUTLIER_CHI2 = 13.815510557964274
+
 POSE_SOLVERS = ("homography", "ippe")
 
 
@@ -94,8 +108,17 @@ class FrontEndConfig:
             Zero (noise-free input) is floored at ``MIN_PIXEL_SIGMA`` so the
             covariances, and the fusion built on them, stay well posed.
         min_points: fewest shared points for a measurement (>= 4).
-        ransac_threshold_px: RANSAC inlier threshold in pixels for H_d
-            (through OpenCV), or None for plain least squares on every point.
+        ransac: RANSAC (OpenCV) on H_d whenever a frame shares more than 4
+            points with its reference; False: least squares on every point.
+        ransac_threshold_px: RANSAC inlier threshold in pixels; None:
+            ``RANSAC_SIGMAS`` pixel sigmas, at least ``MIN_RANSAC_PX``.
+        outlier_chi2: after the pose refinement, points whose transfer residual
+            exceeds this chi^2 (2 dof) under its covariance are rejected and the
+            pose refined again; None: no gate. Off-plane points agree with the
+            plane until the camera has moved (parallax), so this catches what
+            the first frames' RANSAC cannot.
+        reject_after: a track rejected in this many frames is left out of every
+            later pose and velocity (it does not lie on the plane); None: never.
         refine_iterations: Gauss-Newton steps refining the homography pose.
         pose_solver: "homography" (the paper's H_d) or "ippe" (OpenCV solvePnP).
         min_parallax: ||T|| / d* a frame needs before its decomposition is
@@ -112,7 +135,10 @@ class FrontEndConfig:
 
     pixel_sigma: float = DEFAULT_PIXEL_SIGMA
     min_points: int = 4
+    ransac: bool = True
     ransac_threshold_px: float | None = None
+    outlier_chi2: float | None = OUTLIER_CHI2
+    reject_after: int | None = 3
     refine_iterations: int = 2
     pose_solver: str = "homography"
     min_parallax: float = 0.05
@@ -131,6 +157,21 @@ class FrontEndConfig:
             )
         if self.ransac_threshold_px is not None:
             as_number(self.ransac_threshold_px, "ransac_threshold_px", above=0.0)
+        if self.outlier_chi2 is not None:
+            as_number(self.outlier_chi2, "outlier_chi2", above=0.0)
+        if self.reject_after is not None:
+            as_integer(self.reject_after, "reject_after", 1)
+        if not isinstance(self.ransac, bool):
+            raise InputError(f"ransac: expected true or false, got {self.ransac!r}")
+
+    @property
+    def ransac_px(self) -> float | None:
+        """The RANSAC threshold in force (pixels), or None without RANSAC."""
+        if not self.ransac:
+            return None
+        if self.ransac_threshold_px is not None:
+            return float(self.ransac_threshold_px)
+        return max(RANSAC_SIGMAS * self.pixel_sigma, MIN_RANSAC_PX)
 
 
 @dataclass(frozen=True)
@@ -155,9 +196,12 @@ def _normalized_by_id(camera: CameraModel, obs: FrameObservations) -> tuple[np.n
     return ids, (m if m is not None else np.empty((0, 3)))
 
 
-def _common(a: _Frame, ids: np.ndarray, m: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    _, ia, ib = np.intersect1d(a.ids, ids, assume_unique=True, return_indices=True)
-    return a.m[ia], m[ib]
+def _common(
+    a: _Frame, ids: np.ndarray, m: np.ndarray, *, with_ids: bool = False
+) -> tuple[np.ndarray, ...]:
+    """The rows of ``a.m`` and ``m`` of the ids both have (and those ids, if asked)."""
+    shared, ia, ib = np.intersect1d(a.ids, ids, assume_unique=True, return_indices=True)
+    return (a.m[ia], m[ib], shared) if with_ids else (a.m[ia], m[ib])
 
 
 class MeasurementFrontEnd:
@@ -180,6 +224,10 @@ class MeasurementFrontEnd:
         self._previous: _Frame | None = None
         self._normal: np.ndarray | None = None if plane.normal is None else plane.normal
         self._normal_candidates: list[list[np.ndarray]] = []
+        #: frames in which each track id was rejected; ids at ``reject_after`` are excluded.
+        self._rejections: dict[int, int] = {}
+        self._excluded: set[int] = set()
+        self._rejected_now = 0
 
     @property
     def normal(self) -> np.ndarray | None:
@@ -193,6 +241,10 @@ class MeasurementFrontEnd:
                 f"frame {obs.index}: time {obs.t} does not increase (previous {self._previous.t})"
             )
         ids, m = _normalized_by_id(self.camera, obs)
+        if self._excluded:
+            keep = ~np.isin(ids, list(self._excluded))
+            ids, m = ids[keep], m[keep]
+        self._rejected_now = 0
         if self._reference is None:
             self._reference = _Frame(obs.index, obs.t, ids, m, np.eye(3), np.zeros(3))
             self._world_index = obs.index
@@ -200,7 +252,28 @@ class MeasurementFrontEnd:
         frame = _Frame(obs.index, obs.t, ids, m, R, T)
         velocity = self._measure_velocity(frame) if self._previous is not None else None
         self._previous = frame
-        return FrameMeasurement(obs.index, obs.t, pose, velocity, num_points=len(ids))
+        return FrameMeasurement(
+            obs.index,
+            obs.t,
+            pose,
+            velocity,
+            num_points=len(obs.ids),
+            num_rejected=self._rejected_now + len(obs.ids) - len(ids),
+        )
+
+    @property
+    def excluded_tracks(self) -> frozenset[int]:
+        """Ids of the tracks left out as not on the plane (see ``reject_after``)."""
+        return frozenset(self._excluded)
+
+    def _reject(self, ids: np.ndarray) -> None:
+        """Count one rejection for each id; exclude the ids that reached ``reject_after``."""
+        self._rejected_now += len(ids)
+        limit = self.config.reject_after
+        for i in ids.tolist():
+            self._rejections[i] = self._rejections.get(i, 0) + 1
+            if limit is not None and self._rejections[i] >= limit:
+                self._excluded.add(i)
 
     # -- pose from H_d -------------------------------------------------------------------------
 
@@ -213,10 +286,10 @@ class MeasurementFrontEnd:
         (for the velocity's plane) and the pose measurement T_rc, or Nones.
         """
         assert self._reference is not None
-        m_ref, m_cur = _common(self._reference, ids, m)
+        m_ref, m_cur, shared = _common(self._reference, ids, m, with_ids=True)
         if self._switch_keyframe(len(m_ref), ids, m):
             self._reference = self._previous
-            m_ref, m_cur = _common(self._reference, ids, m)
+            m_ref, m_cur, shared = _common(self._reference, ids, m, with_ids=True)
         ref = self._reference
         if len(m_ref) < self.config.min_points:
             return None, None, None
@@ -229,19 +302,23 @@ class MeasurementFrontEnd:
         plane = self._plane_in(ref)
         if self.config.pose_solver == "ippe":
             R, T = self._ippe_motion(m_ref, m_cur, plane)
+            start = np.ones(len(m_ref), dtype=bool)
         else:
             motion = self._homography_motion(m_ref, m_cur, plane)
             if motion is None:
                 return None, None, None
-            R, T, inliers = motion
-            m_ref, m_cur = m_ref[inliers], m_cur[inliers]
-        info = np.eye(6)
-        for _ in range(self.config.refine_iterations + 1):
-            info, grad = pose_normal_equations(R, T, m_ref, m_cur, plane, self._sigma)
-            if self.config.pose_solver == "ippe":
-                break  # IPPE is reported as OpenCV gives it, without our refinement
-            delta = np.linalg.solve(info, grad)
-            R, T = retract_motion(R, T, delta)
+            R, T, start = motion
+        # RANSAC's inliers start the refinement; the gate at the refined pose, on every
+        # shared point, decides (RANSAC's mask comes from a noisy minimal sample).
+        R, T, info = self._refine(R, T, m_ref[start], m_cur[start], plane)
+        keep = self._gate(R, T, m_ref, m_cur, plane)
+        if np.count_nonzero(keep) < self.config.min_points:
+            return None, None, None
+        self._reject(shared[~keep])
+        refit = not np.array_equal(keep, start)
+        m_ref, m_cur = m_ref[keep], m_cur[keep]
+        if refit:
+            R, T, info = self._refine(R, T, m_ref, m_cur, plane)
         R_rc, p_rc = camera_pose_from_motion(R, T)
         current, reference = pose_covariance_parts(R, T, m_ref, m_cur, plane, self._sigma)
         keyframe: dict[str, np.ndarray] = {}
@@ -267,6 +344,32 @@ class MeasurementFrontEnd:
         )
         # Motion world -> current: X = R (R_ref X_w + T_ref) + T.
         return R @ ref.R, R @ ref.T + T, pose
+
+    def _refine(
+        self, R: np.ndarray, T: np.ndarray, m_ref: np.ndarray, m_cur: np.ndarray, plane: Plane
+    ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """Gauss-Newton steps on the weighted transfer error: (R, T, information)."""
+        info = np.eye(6)
+        for _ in range(self.config.refine_iterations + 1):
+            info, grad = pose_normal_equations(R, T, m_ref, m_cur, plane, self._sigma)
+            if self.config.pose_solver == "ippe":
+                break  # IPPE is reported as OpenCV gives it, without our refinement
+            R, T = retract_motion(R, T, np.linalg.solve(info, grad))
+        return R, T, info
+
+    def _gate(
+        self, R: np.ndarray, T: np.ndarray, m_ref: np.ndarray, m_cur: np.ndarray, plane: Plane
+    ) -> np.ndarray:
+        """Inlier mask of the chi^2 gate on the transfer residuals (all True without gate)."""
+        limit = self.config.outlier_chi2
+        if limit is None or len(m_ref) <= self.config.min_points:
+            return np.ones(len(m_ref), dtype=bool)
+        lin = linearize_transfer(R, T, m_ref, m_cur, plane, self._sigma)
+        cov = self._sigma**2 * (np.eye(2)[None] + lin.A @ np.transpose(lin.A, (0, 2, 1)))
+        chi2 = np.einsum(
+            "ni,ni->n", lin.residual, np.linalg.solve(cov, lin.residual[..., None])[..., 0]
+        )
+        return chi2 <= limit
 
     def _switch_keyframe(self, shared_with_reference: int, ids: np.ndarray, m: np.ndarray) -> bool:
         """Make the previous frame the reference when it sees clearly more of the current points.
@@ -299,7 +402,7 @@ class MeasurementFrontEnd:
         With ``plane`` None (n* unknown), feeds the normal estimation and
         returns None until n* is known.
         """
-        threshold = self.config.ransac_threshold_px
+        threshold = self.config.ransac_px if len(m_ref) > 4 else None
         H, inliers = estimate_homography(
             m_ref,
             m_cur,
@@ -382,8 +485,19 @@ class MeasurementFrontEnd:
         m_mid = 0.5 * (m0 + m1)
         mdot = (m1 - m0) / dt
         w, v = velocity_known_normal(m_mid, mdot, n_mid, d_mid)
-        twist = body_twist_from_scene_motion(w, v)
         A = velocity_design_matrix(m_mid, n_mid)
+        limit = self.config.outlier_chi2
+        if limit is not None and len(m_mid) > self.config.min_points:
+            # The same gate as the pose's, on the flow residuals (variance 2 s^2 / dt^2).
+            residual = (mdot[:, :2].ravel() - A @ np.concatenate((w, v / d_mid))).reshape(-1, 2)
+            keep = np.sum(residual**2, axis=1) * dt**2 / (2.0 * self._sigma**2) <= limit
+            if np.count_nonzero(keep) < self.config.min_points:
+                return None
+            if not keep.all():
+                m_mid, mdot = m_mid[keep], mdot[keep]
+                w, v = velocity_known_normal(m_mid, mdot, n_mid, d_mid)
+                A = velocity_design_matrix(m_mid, n_mid)
+        twist = body_twist_from_scene_motion(w, v)
         cov_wu = (2.0 * self._sigma**2 / dt**2) * np.linalg.inv(A.T @ A)
         # [w_b; v_b] = -[w; d u]
         J = -np.diag([1.0, 1.0, 1.0, d_mid, d_mid, d_mid])
