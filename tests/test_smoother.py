@@ -19,6 +19,7 @@ from hvo_graph.errors import InputError
 from hvo_graph.estimators.kalman import KalmanBaseline
 from hvo_graph.estimators.measurements import RawMeasurements
 from hvo_graph.estimators.smoother import (
+    DEFAULT_ACCELERATION_SIGMA,
     BatchSmoother,
     FactorGraphSmoother,
     FixedLagSmoother,
@@ -507,7 +508,10 @@ def test_bad_measurements_raise_input_error(frame, message):
 @pytest.mark.parametrize("solver", SOLVERS)
 def test_a_rejected_frame_leaves_the_smoother_unchanged(solver, paper_truth):
     frames = measure(paper_truth, np.random.default_rng(8))[:80]
-    reference = FactorGraphSmoother(solver=solver).run(frames)
+    streamed = FactorGraphSmoother(solver=solver)
+    for frame in frames:  # frame by frame, as below ("auto" noise refits as it goes)
+        streamed.update(frame)
+    reference = streamed.trajectory()
     smoother = FactorGraphSmoother(solver=solver)
     for frame in frames[:50]:
         smoother.update(frame)
@@ -558,7 +562,8 @@ def test_fixed_lag_values_are_the_smoothed_values_when_they_left(paper_truth):
     # (observed here); its reported value must then be the full-smoother optimum on
     # frames 0..j-1, which the batch solver computes independently.
     frames = measure(paper_truth, np.random.default_rng(7))[:60]
-    smoother = FixedLagSmoother(lag=0.3)
+    sigma = DEFAULT_ACCELERATION_SIGMA  # one fixed motion model for both solvers
+    smoother = FixedLagSmoother(lag=0.3, acceleration_sigma=sigma)
     left: dict[int, int] = {}
     for j, frame in enumerate(frames):
         smoother.update(frame)
@@ -568,7 +573,7 @@ def test_fixed_lag_values_are_the_smoothed_values_when_they_left(paper_truth):
     fixed = smoother.trajectory()
     assert sorted(left) == list(range(len(left))) and len(left) > 40
     for i in (0, 5, 17, 40):
-        batch = BatchSmoother().run(frames[: left[i]])
+        batch = BatchSmoother(acceleration_sigma=sigma).run(frames[: left[i]])
         # Marginalization freezes linearization points: agreement within a few percent
         # of the noise (1 cm, 0.2 m/s).
         assert np.abs(fixed.positions[i] - batch.positions[i]).max() < 5e-4

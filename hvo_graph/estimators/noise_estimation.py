@@ -33,14 +33,21 @@ from dataclasses import dataclass
 import gtsam
 import numpy as np
 
+from hvo_graph.errors import InputError
+from hvo_graph.estimators.process_noise import acceleration_sigma
 from hvo_graph.types import FrameMeasurement
 
-#: Lower bound of q_w and q_v (rad^2 s^-3, m^2 s^-3): 1 mm/s (mrad/s) of random-walk
-#: velocity change over 10 s, well below any motion worth smoothing.
-MIN_SPECTRAL_DENSITY: float = 1e-5
+#: Lower bound of q_w and q_v (rad^2 s^-3, m^2 s^-3): a random-walk twist change of
+#: 1 cm/s (10 mrad/s) per second. Below it the likelihood of a near-static sequence
+#: is flat, the smoother would trust the motion model without limit, and ISAM2's
+#: Cholesky factorization of the near-singular system fails.
+MIN_SPECTRAL_DENSITY: float = 1e-4
 
 #: Upper bound of the search (an acceleration of ~100 m/s^2 per frame interval).
 MAX_SPECTRAL_DENSITY: float = 1e4
+
+#: Innovation gate of the likelihood: the 99.9 % quantile of chi^2 with 6 dof.
+OUTLIER_GATE: float = 22.457744484825323
 
 #: Fewest pose measurements for an estimate; shorter sequences keep the default.
 MIN_POSES: int = 10
@@ -108,7 +115,12 @@ def unrolled_poses(
 
 
 def log_likelihood(
-    t: np.ndarray, s: np.ndarray, C: np.ndarray, q_w: np.ndarray, q_v: np.ndarray
+    t: np.ndarray,
+    s: np.ndarray,
+    C: np.ndarray,
+    q_w: np.ndarray,
+    q_v: np.ndarray,
+    gate: float = np.inf,
 ) -> np.ndarray:
     """log p(s_1..K | q_w, q_v) of the 12-state WNA model, for M pairs at once.
 
@@ -119,6 +131,9 @@ def log_likelihood(
     Args:
         t: (K,) times; s: (K, 6) unrolled poses; C: (K, 6, 6) their covariances.
         q_w, q_v: (M,) spectral densities to evaluate.
+        gate: an innovation whose squared Mahalanobis norm exceeds this is an
+            outlier: it costs the gate (a bounded, Huber-like penalty) and does
+            not update the state, so one bad pose cannot drive Q up.
     Returns:
         (M,) log-likelihoods of s_1..K given s_0.
     """
@@ -151,12 +166,14 @@ def log_likelihood(
         y = s[k][None] - x[:, :6]
         L = np.linalg.cholesky(S)
         z = np.linalg.solve(L, y[:, :, None])[:, :, 0]
+        d2 = np.sum(z * z, axis=1)
         ll -= 0.5 * (
-            np.sum(z * z, axis=1)
+            np.minimum(d2, gate)
             + 2.0 * np.log(np.diagonal(L, axis1=1, axis2=2)).sum(axis=1)
             + 6.0 * np.log(2.0 * np.pi)
         )
         gain = np.linalg.solve(S, P[:, :6, :]).transpose(0, 2, 1)  # (M, 12, 6) = P H^T S^-1
+        gain[d2 > gate] = 0.0  # an outlier pose neither updates the state nor inflates Q
         x += np.einsum("mij,mj->mi", gain, y)
         P = P - gain @ P[:, :6, :]
         P = 0.5 * (P + P.transpose(0, 2, 1))
@@ -189,7 +206,7 @@ def estimate_process_noise(
     step = axis_w[1] - axis_w[0]
     for _ in range(refinements + 1):
         A, B = np.meshgrid(axis_w, axis_v, indexing="ij")
-        ll = log_likelihood(t, s, C, 10.0 ** A.ravel(), 10.0 ** B.ravel())
+        ll = log_likelihood(t, s, C, 10.0 ** A.ravel(), 10.0 ** B.ravel(), OUTLIER_GATE)
         i = int(np.argmax(ll))
         best, best_ll = (float(A.ravel()[i]), float(B.ravel()[i])), float(ll[i])
         step /= 3.0
@@ -197,3 +214,60 @@ def estimate_process_noise(
         axis_v = np.clip(best[1] + step * np.arange(-3, 4), lo, hi)
     sigma = (float(10.0 ** (best[0] / 2)), float(10.0 ** (best[1] / 2)))
     return ProcessNoiseEstimate(sigma, best_ll, len(t))
+
+
+#: Streaming "auto" process noise: the first refit after this many frames, then at
+#: every doubling (the cost stays O(frames) overall).
+FIRST_REFIT: int = 30
+
+
+class ProcessNoiseSchedule:
+    """The (s_w, s_v) a streaming estimator uses: fixed, or fitted to the data ("auto").
+
+    With "auto", :meth:`fit_all` fits them on a whole sequence known in advance;
+    otherwise :meth:`observe` refits on the frames seen so far after
+    :data:`FIRST_REFIT`, 60, 120, ... frames.
+
+    Args:
+        value: "auto", or one or two numbers (angular, linear; see
+            :func:`~hvo_graph.estimators.process_noise.acceleration_sigma`).
+        default: (s_w, s_v) until the first fit (and when a fit has too few poses).
+    """
+
+    def __init__(self, value: float | Sequence[float] | str, default: tuple[float, float]):
+        self.auto = isinstance(value, str)
+        if self.auto and value != "auto":
+            raise InputError(
+                "acceleration_sigma: expected 'auto' or one or two finite numbers > 0 "
+                f"(angular, linear), got {value!r}"
+            )
+        #: (s_w, s_v) in force.
+        self.sigma = default if self.auto else acceleration_sigma(value)  # type: ignore[arg-type]
+        self.default = default
+        #: The latest maximum-likelihood fit (None with fixed values or before a fit).
+        self.fit: ProcessNoiseEstimate | None = None
+        self._seen: list[FrameMeasurement] = []
+        self._next: int | None = FIRST_REFIT if self.auto else None
+
+    def fit_all(self, frames: Sequence[FrameMeasurement]) -> None:
+        """Fit on the whole sequence (no refits afterwards); nothing with fixed values."""
+        if self.auto:
+            self._fit(frames)
+            self._next = None
+
+    def observe(self, frame: FrameMeasurement) -> bool:
+        """Record one streamed frame; True when the values changed (a refit)."""
+        if self._next is None:
+            return False
+        self._seen.append(frame)
+        if len(self._seen) < self._next:
+            return False
+        self._next *= 2
+        return self._fit(self._seen)
+
+    def _fit(self, frames: Sequence[FrameMeasurement]) -> bool:
+        fit = estimate_process_noise(frames, default=self.default)
+        if not fit.poses:
+            return False
+        self.fit, self.sigma = fit, fit.acceleration_sigma
+        return True

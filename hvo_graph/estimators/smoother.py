@@ -11,16 +11,22 @@ and the reasons for every default):
 - pose measurement from the discrete homography H_d: with reference 0 (W) a
   ``PriorFactorPose3`` on X(k); with a keyframe reference r a
   ``BetweenFactorPose3`` X(r) -> X(k); noise ``Gaussian.Covariance`` of the
-  front end's full 6x6 covariance (tangent [rot; trans], right perturbation);
+  frame's own pixel noise (tangent [rot; trans], right perturbation). The
+  reference frame's pixel noise is one error shared by all its poses: no
+  number of frames averages it away, so it is added to the reported pose
+  marginals instead of to the factors (``shared_reference_noise``);
 - twist measurement from the continuous homography H_c over [t - dt/2,
   t + dt/2]: :func:`~hvo_graph.estimators.factors.mean_velocity_factor` on the
   time average of the piecewise-linear twist ((V(k-1) + V(k)) / 2 for the usual
-  interval), full covariance;
+  interval), full covariance; only where two H_d poses do not already span the
+  interval (the flow and those poses are made of the same pixels);
 - motion: :func:`~hvo_graph.estimators.factors.motion_factor`,
   Log(X(k-1)^-1 X(k)) = dt (V(k-1) + V(k)) / 2 with the Brownian-bridge
   covariance Q dt^3 / 12 of the white-noise-acceleration model;
 - twist random walk: ``BetweenFactorVector`` V(k-1) -> V(k), zero mean,
-  covariance Q dt; Q = diag(s_w^2 I_3, s_v^2 I_3) from ``acceleration_sigma``;
+  covariance Q dt; Q = diag(s_w^2 I_3, s_v^2 I_3) from ``acceleration_sigma``,
+  by default the maximum-likelihood values of the sequence
+  (:mod:`hvo_graph.estimators.noise_estimation`);
 - optional robust loss (Huber or Cauchy) on the two measurement factors.
 
 Solvers (one :class:`~hvo_graph.estimators.base.Estimator` interface; the back
@@ -40,21 +46,28 @@ ends are in :mod:`hvo_graph.estimators.solvers`):
 from __future__ import annotations
 
 import math
-from collections.abc import Sequence
+from collections.abc import Iterable, Sequence
 
 import gtsam
 import numpy as np
 from gtsam.symbol_shorthand import V, X
 
-from hvo_graph.errors import InputError, as_covariance, as_integer, as_number, as_rotation
+from hvo_graph.errors import InputError, as_integer, as_number
 from hvo_graph.estimators.base import Estimator
 from hvo_graph.estimators.factors import (
     _mean_velocity_factor,
-    interval_weights,
     keyframe_between_factor,
     motion_factor,
     replace_keyframe_plane,
 )
+from hvo_graph.estimators.measurement_checks import (
+    checked_pose,
+    checked_reference_covariance,
+    checked_velocity,
+    keyframe_model,
+    twist_nodes,
+)
+from hvo_graph.estimators.noise_estimation import ProcessNoiseSchedule
 from hvo_graph.estimators.process_noise import (
     DEFAULT_ACCELERATION_SIGMA,
     bridge_variance,
@@ -74,7 +87,6 @@ from hvo_graph.types import (
     PoseMeasurement,
     StateEstimate,
     Trajectory,
-    VelocityMeasurement,
 )
 
 __all__ = [
@@ -116,60 +128,11 @@ DEFAULT_RELINEARIZE_SKIP: int = 10
 
 _ZERO6 = np.zeros(6)
 
+#: ``velocity_factors`` choices of :class:`FactorGraphSmoother`.
+VELOCITY_FACTOR_POLICIES: tuple[str, ...] = ("gaps", "all")
+
 #: A checked twist measurement: (z, covariance, node frame indices, node weights).
 _TwistMeasurement = tuple[np.ndarray, np.ndarray, list[int], list[float]]
-
-
-def _checked_covariance(matrix: object, name: str) -> np.ndarray:
-    """A (6, 6) symmetric positive definite covariance, symmetrized, or InputError."""
-    c = as_covariance(matrix, name, 6)
-    return 0.5 * (c + c.T)
-
-
-def _checked_pose(pose: PoseMeasurement, k: int) -> tuple[gtsam.Pose3, np.ndarray, int]:
-    name = f"frame {k}: pose"
-    R = as_rotation(pose.rotation, f"{name}.rotation")
-    p = np.asarray(pose.position, dtype=float)
-    if p.shape != (3,) or not np.all(np.isfinite(p)):
-        raise InputError(f"{name}.position: expected a finite (3,) vector, got shape {p.shape}")
-    cov = _checked_covariance(pose.covariance, f"{name}.covariance")
-    ref = as_integer(pose.reference, f"{name}.reference", 0, what="a frame index")
-    if ref != 0 and ref >= k:
-        raise InputError(f"{name}.reference: expected an earlier frame than {k}, got {ref}")
-    return gtsam.Pose3(gtsam.Rot3(R), p), cov, int(ref)
-
-
-def _checked_velocity(velocity: VelocityMeasurement, k: int) -> tuple[np.ndarray, np.ndarray]:
-    name = f"frame {k}: velocity"
-    z = np.asarray(velocity.twist, dtype=float)
-    if z.shape != (6,) or not np.all(np.isfinite(z)):
-        raise InputError(f"{name}.twist: expected a finite (6,) vector, got shape {z.shape}")
-    cov = _checked_covariance(velocity.covariance, f"{name}.covariance")
-    if not math.isfinite(velocity.t):
-        raise InputError(f"{name}.t: expected a finite time, got {velocity.t}")
-    if not (math.isfinite(velocity.dt) and velocity.dt >= 0):
-        raise InputError(f"{name}.dt: expected a finite interval >= 0, got {velocity.dt}")
-    return z, cov
-
-
-def _keyframe_model(pose: PoseMeasurement, k: int) -> tuple[gtsam.Pose3, np.ndarray] | None:
-    """(assumed keyframe pose A, plane Jacobian J) of a keyframe-relative pose, or None."""
-    fields = (pose.reference_rotation, pose.reference_position, pose.plane_jacobian)
-    if all(f is None for f in fields):
-        return None
-    name = f"frame {k}: pose"
-    if any(f is None for f in fields):
-        raise InputError(
-            f"{name}: reference_rotation, reference_position and plane_jacobian go together"
-        )
-    R = as_rotation(pose.reference_rotation, f"{name}.reference_rotation")
-    p = np.asarray(pose.reference_position, dtype=float)
-    J = np.asarray(pose.plane_jacobian, dtype=float)
-    if p.shape != (3,) or not np.all(np.isfinite(p)):
-        raise InputError(f"{name}.reference_position: expected a finite (3,) vector")
-    if J.shape != (6, 6) or not np.all(np.isfinite(J)):
-        raise InputError(f"{name}.plane_jacobian: expected a finite (6, 6) matrix")
-    return gtsam.Pose3(gtsam.Rot3(R), p), J
 
 
 class FactorGraphSmoother(Estimator):
@@ -180,8 +143,22 @@ class FactorGraphSmoother(Estimator):
         lag: window of the fixed-lag smoother, seconds (> 0; used by "fixed-lag").
         acceleration_sigma: (s_w, s_v), square roots of the white-noise
             acceleration spectral densities, angular (rad s^-3/2) and linear
-            (m s^-3/2); a single number sets both. Default
-            :data:`DEFAULT_ACCELERATION_SIGMA`.
+            (m s^-3/2); a single number sets both. "auto" (default): the
+            maximum-likelihood values of the sequence
+            (:func:`~hvo_graph.estimators.noise_estimation.estimate_process_noise`):
+            :meth:`run` fits them on the whole sequence first; frame-by-frame
+            :meth:`update` starts from :data:`DEFAULT_ACCELERATION_SIGMA` and refits
+            on the frames so far after 30, 60, 120, ... frames (later motion factors
+            use the new values). The values in force: :attr:`acceleration_sigma`.
+        shared_reference_noise: True (default): an H_d factor carries only its own
+            frame's pixel noise (``covariance - reference_covariance``); the
+            reference frame's share, one offset common to every pose measured
+            against it, cannot be averaged away and is added to the reported pose
+            marginals instead. False: the full covariance in every factor.
+        velocity_factors: "gaps" (default): an H_c twist factor only where no two
+            H_d poses against the same reference already span its interval (the
+            flow is made of the same pixels as those two poses, which would count
+            them twice); "all": every H_c twist.
         robust: None, "huber" or "cauchy": robust loss on the measurement factors.
         robust_threshold: M-estimator threshold on the whitened residual norm;
             default :data:`DEFAULT_ROBUST_THRESHOLD`.
@@ -203,7 +180,9 @@ class FactorGraphSmoother(Estimator):
         *,
         solver: str = "isam2",
         lag: float = 1.0,
-        acceleration_sigma: float | Sequence[float] = DEFAULT_ACCELERATION_SIGMA,
+        acceleration_sigma: float | Sequence[float] | str = "auto",
+        shared_reference_noise: bool = True,
+        velocity_factors: str = "gaps",
         robust: str | None = None,
         robust_threshold: float | None = None,
         compute_covariance: bool = False,
@@ -219,9 +198,22 @@ class FactorGraphSmoother(Estimator):
         self.solver = solver
         self.name = SOLVERS[solver]
         self.lag = as_number(lag, "lag", above=0.0)
-        self.acceleration_sigma = check_acceleration_sigma(acceleration_sigma)
-        #: diag(Q): white-noise-acceleration spectral densities, [rot x3; trans x3].
-        self._q = twist_spectral_density(self.acceleration_sigma)
+        #: Whether the process noise is fitted to the data ("auto").
+        #: The process noise in force: fixed, or fitted ("auto"; ``.fit`` has the fit).
+        self.process_noise = ProcessNoiseSchedule(acceleration_sigma, DEFAULT_ACCELERATION_SIGMA)
+        self._set_acceleration_sigma(self.process_noise.sigma)
+        self.shared_reference_noise = bool(shared_reference_noise)
+        if velocity_factors not in VELOCITY_FACTOR_POLICIES:
+            raise InputError(
+                f"velocity_factors: expected one of {', '.join(VELOCITY_FACTOR_POLICIES)}, "
+                f"got {velocity_factors!r}"
+            )
+        self.velocity_factors = velocity_factors
+        #: H_c twist factors added, and left out by the "gaps" policy.
+        self.velocity_factor_counts = {"used": 0, "skipped": 0}
+        # Reference covariance of each frame's latest pose (by position), reference by frame.
+        self._reference_cov: list[np.ndarray] = []
+        self._pose_reference: dict[int, int] = {}
         if robust is not None and robust not in ROBUST_LOSSES:
             raise InputError(
                 f"robust: expected None or one of {', '.join(ROBUST_LOSSES)}, got {robust!r}"
@@ -249,7 +241,6 @@ class FactorGraphSmoother(Estimator):
         self._position: dict[int, int] = {}
         self._pose = gtsam.Pose3()  # latest online estimate (for predictions)
         self._twist = _ZERO6
-        self._noise_cache: dict[float, tuple[gtsam.noiseModel.Base, gtsam.noiseModel.Base]] = {}
 
         #: The solver's back end (:mod:`hvo_graph.estimators.solvers`).
         self.backend: Backend = make_backend(
@@ -267,6 +258,21 @@ class FactorGraphSmoother(Estimator):
         return getattr(self.backend, "iterations", 0)
 
     # -- noise models -----------------------------------------------------------------------
+
+    def _set_acceleration_sigma(self, value: float | Sequence[float]) -> None:
+        #: (s_w, s_v) of the motion factors added from now on.
+        self.acceleration_sigma = check_acceleration_sigma(value)
+        #: diag(Q): white-noise-acceleration spectral densities, [rot x3; trans x3].
+        self._q = twist_spectral_density(self.acceleration_sigma)
+        self._noise_cache: dict[float, tuple[gtsam.noiseModel.Base, gtsam.noiseModel.Base]] = {}
+
+    def run(self, frames: Iterable[FrameMeasurement]) -> Trajectory:
+        """Fuse a whole sequence; "auto" process noise is fitted on all of it first."""
+        frames = list(frames)
+        if not self._indices:
+            self.process_noise.fit_all(frames)
+            self._set_acceleration_sigma(self.process_noise.sigma)
+        return super().run(frames)
 
     def _process_noise(self, dt: float) -> tuple[gtsam.noiseModel.Base, gtsam.noiseModel.Base]:
         """(motion, random walk) noise over dt: Q dt^3 / 12 (Brownian bridge) and Q dt."""
@@ -293,48 +299,6 @@ class FactorGraphSmoother(Estimator):
 
     # -- per frame --------------------------------------------------------------------------
 
-    def _twist_nodes(
-        self, k: int, t: float, meas: VelocityMeasurement
-    ) -> tuple[list[int], list[float]]:
-        """Frame indices and weights of the mean-twist factor of frame k (at time t).
-
-        Called before frame k is added: the nodes are the earlier frames and (k, t).
-        """
-        start, end = meas.t - 0.5 * meas.dt, meas.t + 0.5 * meas.dt
-        tol = 1e-9 * max(1.0, abs(t))
-        if start > t + tol:
-            raise InputError(
-                f"frame {k}: velocity interval [{start:.6g}, {end:.6g}] s starts after the "
-                f"frame time {t:.6g} s"
-            )
-        first_time = self._times[0] if self._times else t
-        if end < first_time - tol:
-            raise InputError(
-                f"frame {k}: velocity interval [{start:.6g}, {end:.6g}] s ends before the "
-                f"first frame ({first_time:.6g} s)"
-            )
-        if self._times and abs(start - self._times[-1]) <= tol and abs(end - t) <= tol:
-            # the usual finite-difference interval [t_{k-1}, t_k]
-            indices, weights = [self._indices[-1], k], [0.5, 0.5]
-        else:
-            # Only the nodes that can carry weight: from the last one at or before `start`.
-            first = len(self._times)
-            while first > 0 and (first == len(self._times) or self._times[first] > start):
-                first -= 1
-            times = [*self._times[first:], t]
-            candidates = [*self._indices[first:], k]
-            nodes = interval_weights(times, start, end)
-            indices = [candidates[i] for i, _ in nodes]
-            weights = [w for _, w in nodes]
-        for index in indices:
-            if index != k and not self.backend.in_graph(index):
-                raise InputError(
-                    f"frame {k}: the velocity interval [{start:.6g}, {end:.6g}] s reaches frame "
-                    f"{index}, which already left the fixed-lag window ({self.lag} s); "
-                    "increase lag"
-                )
-        return indices, weights
-
     def _checked_frame(
         self, frame: FrameMeasurement
     ) -> tuple[int, float, tuple[gtsam.Pose3, np.ndarray, int] | None, _TwistMeasurement | None]:
@@ -342,8 +306,8 @@ class FactorGraphSmoother(Estimator):
         k, t = as_integer(frame.index, "frame.index", 0), float(frame.t)
         if not math.isfinite(t):
             raise InputError(f"frame {k}: t is not finite ({frame.t})")
-        pose_meas = None if frame.pose is None else _checked_pose(frame.pose, k)
-        velocity = None if frame.velocity is None else _checked_velocity(frame.velocity, k)
+        pose_meas = None if frame.pose is None else checked_pose(frame.pose, k)
+        velocity = None if frame.velocity is None else checked_velocity(frame.velocity, k)
         if pose_meas is not None and pose_meas[2] != 0 and pose_meas[2] not in self._position:
             raise InputError(
                 f"frame {k}: pose.reference {pose_meas[2]} is not an earlier frame of this sequence"
@@ -351,7 +315,15 @@ class FactorGraphSmoother(Estimator):
         twist_meas = None
         if velocity is not None:
             assert frame.velocity is not None
-            twist_meas = (*velocity, *self._twist_nodes(k, t, frame.velocity))
+            nodes = twist_nodes(
+                k, t, frame.velocity, self._times, self._indices, self.backend.in_graph, self.lag
+            )
+            twist_meas = (*velocity, *nodes)
+        if pose_meas is not None and self.shared_reference_noise:
+            assert frame.pose is not None
+            reference = checked_reference_covariance(frame.pose, k)
+            if reference is not None:
+                pose_meas = (pose_meas[0], pose_meas[1] - reference, pose_meas[2], reference)
         return k, t, pose_meas, twist_meas
 
     def _add_pose_factor(
@@ -359,26 +331,27 @@ class FactorGraphSmoother(Estimator):
         graph: gtsam.NonlinearFactorGraph,
         k: int,
         pose: PoseMeasurement,
-        pose_meas: tuple[gtsam.Pose3, np.ndarray, int],
+        pose_meas: tuple[gtsam.Pose3, np.ndarray, int]
+        | tuple[gtsam.Pose3, np.ndarray, int, np.ndarray],
     ) -> gtsam.Pose3:
         """The H_d factor of frame k (prior, between, or keyframe between); its pose value."""
-        measured, cov, ref = pose_meas
+        measured, cov, ref = pose_meas[:3]
         noise = self._measurement_noise(cov)
         if ref == 0:
             graph.add(gtsam.PriorFactorPose3(X(k), measured, noise))
             return measured
-        keyframe_model = _keyframe_model(pose, k)
+        plane_model = keyframe_model(pose, k)
         reference = self.backend.current_pose(ref)
         measured_here = (
             measured
-            if keyframe_model is None
-            else replace_keyframe_plane(measured, *keyframe_model, reference)
+            if plane_model is None
+            else replace_keyframe_plane(measured, *plane_model, reference)
         )
         pose_guess = reference.compose(measured_here)
-        if self.backend.in_graph(ref) and keyframe_model is not None:
+        if self.backend.in_graph(ref) and plane_model is not None:
             graph.add(
                 keyframe_between_factor(
-                    X(ref), X(k), measured, keyframe_model[0], keyframe_model[1], noise
+                    X(ref), X(k), measured, plane_model[0], plane_model[1], noise
                 )
             )
         elif self.backend.in_graph(ref):
@@ -392,6 +365,11 @@ class FactorGraphSmoother(Estimator):
     def _update(self, frame: FrameMeasurement) -> StateEstimate:
         k, t, pose_meas, twist_meas = self._checked_frame(frame)
         # Everything is checked: from here on the state changes.
+        if self.process_noise.observe(frame):
+            self._set_acceleration_sigma(self.process_noise.sigma)
+        if twist_meas is not None and self._poses_span(k, pose_meas, twist_meas[2]):
+            twist_meas = None
+            self.velocity_factor_counts["skipped"] += 1
 
         graph = gtsam.NonlinearFactorGraph()
         first = not self._indices
@@ -407,6 +385,12 @@ class FactorGraphSmoother(Estimator):
         self._position[k] = len(self._indices)
         self._indices.append(k)
         self._times.append(t)
+        if pose_meas is not None:
+            self._pose_reference[k] = pose_meas[2]
+        shared = pose_meas[3] if pose_meas is not None and len(pose_meas) > 3 else None
+        if shared is None:  # no new pose: the latest one's reference noise still applies
+            shared = self._reference_cov[-1] if self._reference_cov else np.zeros((6, 6))
+        self._reference_cov.append(shared)
 
         # Initial values: the frame's own measurements, else the motion-model prediction.
         # With a robust loss, always the prediction: a factor is linearized (and its
@@ -425,6 +409,7 @@ class FactorGraphSmoother(Estimator):
                 gtsam.Pose3.Expmap((0.5 * dt) * (self._twist + twist_guess))
             )
         if twist_meas is not None:
+            self.velocity_factor_counts["used"] += 1
             z, cov, indices, weights = twist_meas
             noise = self._measurement_noise(cov)
             graph.add(_mean_velocity_factor([V(i) for i in indices], weights, z, noise))
@@ -433,6 +418,8 @@ class FactorGraphSmoother(Estimator):
         values.insert(X(k), pose_guess)
         values.insert(V(k), twist_guess)
         pose, twist, covariance = self.backend.add(graph, values, k, t - self._times[0])
+        if covariance is not None:
+            covariance = self._with_reference_noise(len(self._indices) - 1, covariance)
         self._pose, self._twist = pose, twist
         return StateEstimate(
             index=k,
@@ -442,6 +429,24 @@ class FactorGraphSmoother(Estimator):
             twist=np.asarray(twist, dtype=float),
             covariance=covariance,
         )
+
+    def _poses_span(self, k: int, pose_meas: tuple | None, nodes: list[int]) -> bool:
+        """Whether H_d poses of the previous frame and of frame k, against the same
+        reference (or frame k's against the previous frame), measure the H_c interval."""
+        if self.velocity_factors == "all" or pose_meas is None or len(self._indices) == 0:
+            return False
+        previous, reference = self._indices[-1], pose_meas[2]
+        if nodes != [previous, k]:
+            return False
+        return reference == previous or self._pose_reference.get(previous, -1) == reference
+
+    def _with_reference_noise(self, position: int, covariance: np.ndarray) -> np.ndarray:
+        """The 12x12 marginal plus the shared reference noise the factors left out."""
+        if not self.shared_reference_noise:
+            return covariance
+        covariance = covariance.copy()
+        covariance[:6, :6] += self._reference_cov[position]
+        return covariance
 
     # -- results ----------------------------------------------------------------------------
 
@@ -460,7 +465,7 @@ class FactorGraphSmoother(Estimator):
             twists[i] = twist
             if covariances is not None:
                 assert cov is not None
-                covariances[i] = cov
+                covariances[i] = self._with_reference_noise(i, cov)
         return Trajectory(
             t=np.array(self._times),
             rotations=rotations,

@@ -1,0 +1,144 @@
+"""Checks of the measurement records a factor-graph smoother is given.
+
+Each returns the values the graph needs, or raises InputError naming the frame
+and the field; the smoother calls them all before it changes any state.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Callable, Sequence
+
+import gtsam
+import numpy as np
+
+from hvo_graph.errors import InputError, as_covariance, as_integer, as_rotation
+from hvo_graph.estimators.factors import interval_weights
+from hvo_graph.types import PoseMeasurement, VelocityMeasurement
+
+
+def checked_covariance(matrix: object, name: str) -> np.ndarray:
+    """A (6, 6) symmetric positive definite covariance, symmetrized, or InputError."""
+    c = as_covariance(matrix, name, 6)
+    return 0.5 * (c + c.T)
+
+
+def checked_pose(pose: PoseMeasurement, k: int) -> tuple[gtsam.Pose3, np.ndarray, int]:
+    """(measured pose, covariance, reference index) of frame k's H_d pose, or InputError."""
+    name = f"frame {k}: pose"
+    R = as_rotation(pose.rotation, f"{name}.rotation")
+    p = np.asarray(pose.position, dtype=float)
+    if p.shape != (3,) or not np.all(np.isfinite(p)):
+        raise InputError(f"{name}.position: expected a finite (3,) vector, got shape {p.shape}")
+    cov = checked_covariance(pose.covariance, f"{name}.covariance")
+    ref = as_integer(pose.reference, f"{name}.reference", 0, what="a frame index")
+    if ref != 0 and ref >= k:
+        raise InputError(f"{name}.reference: expected an earlier frame than {k}, got {ref}")
+    return gtsam.Pose3(gtsam.Rot3(R), p), cov, int(ref)
+
+
+def checked_velocity(velocity: VelocityMeasurement, k: int) -> tuple[np.ndarray, np.ndarray]:
+    """(twist, covariance) of frame k's H_c twist, or InputError."""
+    name = f"frame {k}: velocity"
+    z = np.asarray(velocity.twist, dtype=float)
+    if z.shape != (6,) or not np.all(np.isfinite(z)):
+        raise InputError(f"{name}.twist: expected a finite (6,) vector, got shape {z.shape}")
+    cov = checked_covariance(velocity.covariance, f"{name}.covariance")
+    if not math.isfinite(velocity.t):
+        raise InputError(f"{name}.t: expected a finite time, got {velocity.t}")
+    if not (math.isfinite(velocity.dt) and velocity.dt >= 0):
+        raise InputError(f"{name}.dt: expected a finite interval >= 0, got {velocity.dt}")
+    return z, cov
+
+
+def keyframe_model(pose: PoseMeasurement, k: int) -> tuple[gtsam.Pose3, np.ndarray] | None:
+    """(assumed keyframe pose A, plane Jacobian J) of a keyframe-relative pose, or None."""
+    fields = (pose.reference_rotation, pose.reference_position, pose.plane_jacobian)
+    if all(f is None for f in fields):
+        return None
+    name = f"frame {k}: pose"
+    if any(f is None for f in fields):
+        raise InputError(
+            f"{name}: reference_rotation, reference_position and plane_jacobian go together"
+        )
+    R = as_rotation(pose.reference_rotation, f"{name}.reference_rotation")
+    p = np.asarray(pose.reference_position, dtype=float)
+    J = np.asarray(pose.plane_jacobian, dtype=float)
+    if p.shape != (3,) or not np.all(np.isfinite(p)):
+        raise InputError(f"{name}.reference_position: expected a finite (3,) vector")
+    if J.shape != (6, 6) or not np.all(np.isfinite(J)):
+        raise InputError(f"{name}.plane_jacobian: expected a finite (6, 6) matrix")
+    return gtsam.Pose3(gtsam.Rot3(R), p), J
+
+
+def checked_reference_covariance(pose: PoseMeasurement, k: int) -> np.ndarray | None:
+    """The pose's reference covariance (None when absent), symmetrized and checked.
+
+    It must be a positive semi-definite part of the pose covariance: what is
+    left, the frame's own noise, must stay positive definite.
+    """
+    if pose.reference_covariance is None:
+        return None
+    name = f"frame {k}: pose.reference_covariance"
+    ref = np.asarray(pose.reference_covariance, dtype=float)
+    if ref.shape != (6, 6) or not np.all(np.isfinite(ref)):
+        raise InputError(f"{name}: expected a finite (6, 6) matrix")
+    ref = 0.5 * (ref + ref.T)
+    own = np.asarray(pose.covariance, dtype=float) - ref
+    scale = max(1e-300, float(np.abs(ref).max()))
+    if np.linalg.eigvalsh(ref)[0] < -1e-9 * scale or not np.linalg.eigvalsh(own)[0] > 0:
+        raise InputError(
+            f"{name}: expected a positive semi-definite part of pose.covariance "
+            "(covariance - reference_covariance positive definite)"
+        )
+    return ref
+
+
+def twist_nodes(
+    k: int,
+    t: float,
+    meas: VelocityMeasurement,
+    times: Sequence[float],
+    indices: Sequence[int],
+    in_graph: Callable[[int], bool],
+    lag: float,
+) -> tuple[list[int], list[float]]:
+    """Frame indices and weights of the mean-twist factor of frame k (at time t).
+
+    ``times`` and ``indices`` are the frames before k; ``in_graph`` tells whether a
+    frame is still a variable (fixed-lag window of ``lag`` seconds).
+    """
+    start, end = meas.t - 0.5 * meas.dt, meas.t + 0.5 * meas.dt
+    tol = 1e-9 * max(1.0, abs(t))
+    if start > t + tol:
+        raise InputError(
+            f"frame {k}: velocity interval [{start:.6g}, {end:.6g}] s starts after the "
+            f"frame time {t:.6g} s"
+        )
+    first_time = times[0] if times else t
+    if end < first_time - tol:
+        raise InputError(
+            f"frame {k}: velocity interval [{start:.6g}, {end:.6g}] s ends before the "
+            f"first frame ({first_time:.6g} s)"
+        )
+    if times and abs(start - times[-1]) <= tol and abs(end - t) <= tol:
+        # the usual finite-difference interval [t_{k-1}, t_k]
+        nodes, weights = [indices[-1], k], [0.5, 0.5]
+    else:
+        # Only the nodes that can carry weight: from the last one at or before `start`.
+        first = len(times)
+        while first > 0 and (first == len(times) or times[first] > start):
+            first -= 1
+        node_times = [*times[first:], t]
+        candidates = [*indices[first:], k]
+        weighted = interval_weights(node_times, start, end)
+        nodes = [candidates[i] for i, _ in weighted]
+        weights = [w for _, w in weighted]
+    for index in nodes:
+        if index != k and not in_graph(index):
+            raise InputError(
+                f"frame {k}: the velocity interval [{start:.6g}, {end:.6g}] s reaches frame "
+                f"{index}, which already left the fixed-lag window ({lag} s); "
+                "increase lag"
+            )
+    return nodes, weights
