@@ -34,11 +34,13 @@ from hvo_graph.estimators.registry import (
     check_methods,
     method,
 )
+from hvo_graph.eval.consistency import trajectory_nees
 from hvo_graph.eval.metrics import QUANTITIES, ErrorSeries, ErrorSummary, error_series, summarize
 from hvo_graph.eval.stats import MeanCI, mean_ci
 from hvo_graph.pipeline import measure
 from hvo_graph.report.progress import ProgressBar
-from hvo_graph.sim.scenario import ScenarioConfig, simulate
+from hvo_graph.sim.families import draw
+from hvo_graph.sim.scenario import Scenario, ScenarioConfig, simulate
 from hvo_graph.types import FrameMeasurement, Trajectory
 
 #: Window of the fixed-lag smoother in the experiments, seconds.
@@ -57,10 +59,12 @@ WORKER_ENVIRONMENT: dict[str, str] = {
 _NAMES = tuple(q.name for q in QUANTITIES)
 
 
-def make_method(label: str, seed: int) -> Estimator:
+def make_method(label: str, seed: int, *, covariance: bool = False) -> Estimator:
     """A fresh estimator for ``label`` as the experiments run it (Kalman seed ``seed``,
-    :data:`FIXED_LAG_SECONDS`); not for "smoother-online", which reads a "smoother" run."""
-    return build_estimator(label, EstimatorOptions(seed=seed, lag=FIXED_LAG_SECONDS))
+    :data:`FIXED_LAG_SECONDS`, smoother covariances if asked); not for
+    "smoother-online", which reads a "smoother" run."""
+    options = EstimatorOptions(seed=seed, lag=FIXED_LAG_SECONDS, covariance=covariance)
+    return build_estimator(label, options)
 
 
 class MethodRuns:
@@ -72,11 +76,19 @@ class MethodRuns:
     Args:
         measure: the measurements for a pose solver ("homography" or "ippe").
         seed: seed of the Kalman filters' random initial state.
+        covariance: the smoothers also return their marginal covariances.
     """
 
-    def __init__(self, measure: Callable[[str], Sequence[FrameMeasurement]], seed: int) -> None:
+    def __init__(
+        self,
+        measure: Callable[[str], Sequence[FrameMeasurement]],
+        seed: int,
+        *,
+        covariance: bool = False,
+    ) -> None:
         self._measure = measure
         self.seed = seed
+        self.covariance = covariance
         self._frames: dict[str, Sequence[FrameMeasurement]] = {}
         self._runs: dict[str, tuple[Estimator, Trajectory]] = {}
 
@@ -92,7 +104,7 @@ class MethodRuns:
         source = method(record.online_of) if record.online_of else record
         if source.name not in self._runs:
             frames = self.frames(source.pose_solver)
-            estimator = make_method(source.name, self.seed)
+            estimator = make_method(source.name, self.seed, covariance=self.covariance)
             self._runs[source.name] = (estimator, estimator.run(frames))
         estimator, final = self._runs[source.name]
         return estimator.online_trajectory() if record.online_of else final
@@ -109,6 +121,9 @@ class SeedResult:
         series: per method, per-frame errors over the whole sequence (empty when
             not kept).
         skip: seconds left out at the start of the summaries.
+        nees: per method with covariances, (pose, twist) mean NEES per degree of
+            freedom after ``skip`` seconds (:func:`~hvo_graph.eval.consistency.trajectory_nees`).
+        family: the scenario family of a randomised draw ("" for a plain config).
     """
 
     seed: int
@@ -116,6 +131,8 @@ class SeedResult:
     summaries: dict[str, ErrorSummary]
     series: dict[str, ErrorSeries] = field(default_factory=dict)
     skip: float = 1.0
+    nees: dict[str, tuple[float, float]] = field(default_factory=dict)
+    family: str = ""
 
 
 def run_seed(
@@ -147,34 +164,92 @@ def run_seed(
         raise InputError(
             f"skip: {skip:g} s leaves no frame of a {config.duration:g} s sequence to evaluate"
         )
-    scenario = simulate(config)
+    result = SeedResult(seed=config.seed, config=config, summaries={}, skip=float(skip))
+    return _evaluate(simulate(config), result, methods, keep_series, covariance=False)
+
+
+@dataclass(frozen=True)
+class FamilySeed:
+    """One randomised draw to run: ``family`` of :mod:`hvo_graph.sim.families`, ``seed``,
+    optionally a shorter ``duration`` (seconds)."""
+
+    family: str
+    seed: int
+    duration: float | None = None
+
+
+def run_family_seed(
+    job: FamilySeed,
+    methods: Sequence[str] = METHOD_LABELS,
+    *,
+    skip: float = 1.0,
+    keep_series: bool = False,
+) -> SeedResult:
+    """Draw ``job`` (:func:`hvo_graph.sim.families.draw`) and run every method on it, with
+    the smoothers' covariances and their NEES (``SeedResult.nees``); as :func:`run_seed`."""
+    methods = check_methods(methods)
+    drawn = draw(job.family, job.seed, duration=job.duration)
+    config = drawn.scenario.config
+    skip = as_number(skip, "skip", at_least=0.0, what="a number of seconds")
+    if skip >= config.duration:
+        raise InputError(
+            f"skip: {skip:g} s leaves no frame of a {config.duration:g} s sequence to evaluate"
+        )
+    result = SeedResult(
+        seed=job.seed, config=config, summaries={}, skip=float(skip), family=job.family
+    )
+    return _evaluate(drawn.scenario, result, methods, keep_series, covariance=True)
+
+
+def _evaluate(
+    scenario: Scenario,
+    result: SeedResult,
+    methods: Sequence[str],
+    keep_series: bool,
+    *,
+    covariance: bool,
+) -> SeedResult:
+    """Fill ``result`` with every method's errors (and NEES where covariances exist)."""
     truth = scenario.groundtruth
-    t_start = float(truth.t[0]) + float(skip)
+    t_start = float(truth.t[0]) + result.skip
     runs = MethodRuns(
         lambda solver: measure(
             scenario.observations, scenario, method="ippe" if solver == "ippe" else "smoother"
         ),
-        config.seed,
+        result.seed,
+        covariance=covariance,
     )
-    result = SeedResult(seed=config.seed, config=config, summaries={}, skip=float(skip))
+    where = f"{result.family} " if result.family else ""
     for label in methods:
         try:
-            series = error_series(runs.trajectory(label), truth)
+            trajectory = runs.trajectory(label)
+            series = error_series(trajectory, truth)
             result.summaries[label] = summarize(series, t_start=t_start)
+            if trajectory.covariances is not None:
+                result.nees[label] = trajectory_nees(trajectory, truth, t_start=t_start)
         except InputError as exc:
-            raise InputError(f"seed {config.seed}, method {label}: {exc}") from exc
+            raise InputError(f"{where}seed {result.seed}, method {label}: {exc}") from exc
         except Exception as exc:  # e.g. a GTSAM failure: say where, even from a worker process
             raise RuntimeError(
-                f"seed {config.seed}, method {label}: {type(exc).__name__}: {exc}"
+                f"{where}seed {result.seed}, method {label}: {type(exc).__name__}: {exc}"
             ) from exc
         if keep_series:
             result.series[label] = series
     return result
 
 
-def _run_seed_job(job: tuple[ScenarioConfig, tuple[str, ...], float, bool]) -> SeedResult:
+def _run_seed_job(
+    job: tuple[ScenarioConfig | FamilySeed, tuple[str, ...], float, bool],
+) -> SeedResult:
     config, methods, skip, keep_series = job
+    if isinstance(config, FamilySeed):
+        return run_family_seed(config, methods, skip=skip, keep_series=keep_series)
     return run_seed(config, methods, skip=skip, keep_series=keep_series)
+
+
+def _cost(config: ScenarioConfig | FamilySeed) -> float:
+    """Rough cost of a run (front end ~ frames x points); draws are not known before."""
+    return config.num_frames * config.num_points if isinstance(config, ScenarioConfig) else 0.0
 
 
 def resolve_workers(workers: int | None) -> int:
@@ -200,7 +275,7 @@ def _environment(values: Mapping[str, str]) -> Iterator[None]:
 
 
 def run_seeds(
-    configs: Sequence[ScenarioConfig],
+    configs: Sequence[ScenarioConfig | FamilySeed],
     methods: Sequence[str] = METHOD_LABELS,
     *,
     skip: float = 1.0,
@@ -212,7 +287,8 @@ def run_seeds(
     """:func:`run_seed` for every config, over ``workers`` processes; results in input order.
 
     Args:
-        configs: one scenario per run (typically the same scenario, different seeds).
+        configs: one scenario per run (typically the same scenario, different seeds),
+            or randomised draws (:class:`FamilySeed`, run by :func:`run_family_seed`).
         methods: names from :data:`~hvo_graph.estimators.registry.METHOD_LABELS`.
         skip: seconds left out at the start of every summary.
         keep_series: keep the per-frame errors.
@@ -237,9 +313,7 @@ def run_seeds(
         else:
             # Longest runs first (front-end cost ~ frames x points), so that no
             # worker is left with a long run at the end; results keep the input order.
-            order = sorted(
-                range(len(jobs)), key=lambda i: -configs[i].num_frames * configs[i].num_points
-            )
+            order = sorted(range(len(jobs)), key=lambda i: -_cost(configs[i]))
             # Fresh interpreters ("spawn") read WORKER_ENVIRONMENT before importing numpy;
             # forked workers would inherit this process's BLAS threads.
             with (

@@ -27,17 +27,24 @@ that rotates the measured v into W first.
 from __future__ import annotations
 
 import dataclasses
-from collections.abc import Sequence
+from collections.abc import Iterable, Sequence
 from dataclasses import dataclass
 
 import numpy as np
 
 from hvo_graph.errors import InputError, as_covariance, as_integer, as_matrix, as_number, as_vector
 from hvo_graph.estimators.base import Estimator
-from hvo_graph.estimators.process_noise import DEFAULT_PROCESS_NOISE, white_noise_blocks
+from hvo_graph.estimators.measurement_checks import checked_reference_covariance
+from hvo_graph.estimators.noise_estimation import estimate_process_noise
+from hvo_graph.estimators.process_noise import (
+    DEFAULT_ACCELERATION_SIGMA,
+    DEFAULT_PROCESS_NOISE,
+    kalman_process_noise,
+    white_noise_blocks,
+)
 from hvo_graph.estimators.registry import KALMAN_R_PRESETS
 from hvo_graph.geometry.rotation import euler_to_rotation, rotation_to_euler, skew, wrap_angle
-from hvo_graph.types import FrameMeasurement, StateEstimate
+from hvo_graph.types import FrameMeasurement, StateEstimate, Trajectory
 
 #: Names of the 12 state components, in state order.
 STATE_NAMES: tuple[str, ...] = ("x", "y", "z", "p", "w", "r", "vx", "vy", "vz", "wx", "wy", "wz")
@@ -307,10 +314,16 @@ class KalmanBaseline(Estimator):
 
     Args:
         r_preset: "paper-noisy" (default), "paper-noise-free" (the paper's two R_k
-            diagonals), or "measured" (the diagonal of the front end's covariances
-            in state coordinates, per frame).
+            diagonals), or "measured": not the paper, the front end's noise model
+            given to the filter as it is given to the smoother. R_k is the diagonal
+            of each pose's own-pixel covariance (``covariance -
+            reference_covariance``) in state coordinates; the reference frame's
+            shared noise is added to the reported pose covariance.
         process_noise: (6,) Q_k scalars (sigma_x, sigma_y, sigma_z, sigma_p,
-            sigma_w, sigma_r); default DEFAULT_PROCESS_NOISE.
+            sigma_w, sigma_r); default DEFAULT_PROCESS_NOISE. "auto": the
+            maximum-likelihood white-noise acceleration of the sequence, fitted
+            by :meth:`run` before filtering (the filter stays causal given it;
+            :func:`~hvo_graph.estimators.noise_estimation.estimate_process_noise`).
         seed: seed of the random initial state (None: fresh entropy).
         random_init: draw x_0 ~ N(0, P_0), as the paper starts "from a random
             initial state"; False: x_0 = 0 (the world frame is the first camera
@@ -318,6 +331,10 @@ class KalmanBaseline(Estimator):
         initial_state: (12,) x_0, used as given (random_init is then ignored).
         initial_covariance: (12, 12) P_0, symmetric positive definite; default
             DEFAULT_INITIAL_COVARIANCE.
+        velocity_updates: "all" (the paper): every H_c twist updates the filter;
+            "gaps": only where two poses against the same reference do not already
+            span its interval (front-end twists are made of the same pixels as
+            those poses, and would count them twice).
         world_frame_velocity: not the paper: rotate the measured body-frame v into
             W with the measured R_wc before the update, so the state's v is world
             velocity and x += dt v is exact to first order. The output twist is
@@ -330,22 +347,36 @@ class KalmanBaseline(Estimator):
         self,
         *,
         r_preset: str = "paper-noisy",
-        process_noise: Sequence[float] | np.ndarray | None = None,
+        process_noise: Sequence[float] | np.ndarray | str | None = None,
         seed: int | None = 0,
         random_init: bool = True,
         initial_state: np.ndarray | None = None,
         initial_covariance: np.ndarray | None = None,
         world_frame_velocity: bool = False,
+        velocity_updates: str = "all",
     ) -> None:
         super().__init__()
+        if velocity_updates not in ("all", "gaps"):
+            raise InputError(
+                f"velocity_updates: expected 'all' or 'gaps', got {velocity_updates!r}"
+            )
+        self.velocity_updates = velocity_updates
         if r_preset not in R_PRESETS:
             raise InputError(f"r_preset: expected one of {', '.join(R_PRESETS)}, got {r_preset!r}")
         if seed is not None:
             as_integer(seed, "seed", 0, what="None or an integer")
         self.r_preset = r_preset
+        #: Whether Q_k is fitted to the sequence by :meth:`run` ("auto").
+        self.auto_process_noise = isinstance(process_noise, str)
+        if self.auto_process_noise and process_noise != "auto":
+            raise InputError(f"process_noise: expected 'auto' or numbers, got {process_noise!r}")
         self.process_noise = _check_process_noise(
-            DEFAULT_PROCESS_NOISE if process_noise is None else process_noise
+            DEFAULT_PROCESS_NOISE
+            if process_noise is None or self.auto_process_noise
+            else process_noise
         )
+        self._shared = np.zeros((6, 6))  # reference noise of the latest pose ("measured")
+        self._last_pose: tuple[int, int] | None = None  # (frame, reference) of the latest pose
         self.world_frame_velocity = bool(world_frame_velocity)
         P0 = as_covariance(
             DEFAULT_INITIAL_COVARIANCE if initial_covariance is None else initial_covariance,
@@ -427,6 +458,7 @@ class KalmanBaseline(Estimator):
         self._t_prev = t
         # predict-only frames leave the last update's H, R, y, S, K undefined
         self.H = self.R = self.y = self.S = self.K = None
+        frame = self._own_noise(frame)
         if frame.pose is not None and frame.pose.reference != 0:
             frame = dataclasses.replace(frame, pose=self.pose_in_world(frame.pose))
         p, w, r = self.x[ANGLES]
@@ -439,6 +471,33 @@ class KalmanBaseline(Estimator):
             self.correct(meas.z, meas.rows, self._r_diagonal(meas, frame.index))
         _check_pitch(self.x[3], f"frame {frame.index}: estimated state")
         return self.state_estimate(frame.index, t)
+
+    def run(self, frames: Iterable[FrameMeasurement]) -> Trajectory:
+        """Filter a whole sequence; "auto" process noise is fitted on it first."""
+        frames = list(frames)
+        if self.auto_process_noise and not self._online:
+            fit = estimate_process_noise(frames, default=DEFAULT_ACCELERATION_SIGMA)
+            self.process_noise = kalman_process_noise(fit.acceleration_sigma)
+        return super().run(frames)
+
+    def _own_noise(self, frame: FrameMeasurement) -> FrameMeasurement:
+        """The frame as the filter uses it: with "measured" R, the pose's own-pixel
+        covariance (the shared reference part kept for the output); with "gaps", no
+        twist the poses already span."""
+        pose, velocity = frame.pose, frame.velocity
+        previous = self._last_pose
+        if pose is not None:
+            self._last_pose = (frame.index, pose.reference)
+            if self.r_preset == "measured" and pose.reference_covariance is not None:
+                self._shared = checked_reference_covariance(pose, frame.index)
+                pose = dataclasses.replace(pose, covariance=pose.covariance - self._shared)
+            gaps = self.velocity_updates == "gaps"
+            if gaps and velocity is not None and previous is not None and self._online:
+                spanned = previous[0] == self._online[-1].index and (
+                    pose.reference in (previous[1], previous[0])
+                )
+                velocity = None if spanned else velocity
+        return dataclasses.replace(frame, pose=pose, velocity=velocity)
 
     def state_estimate(self, index: int, t: float) -> StateEstimate:
         """The current state in the contract's form (R_wc, p_wc, body twist [w; v]).
@@ -455,6 +514,7 @@ class KalmanBaseline(Estimator):
             v = R_wc.T @ v
         J = state_to_tangent_jacobian(x, world_frame_velocity=self.world_frame_velocity)
         cov = J @ self.P @ J.T
+        cov[:6, :6] += self._shared  # zero unless "measured" with reference covariances
         return StateEstimate(
             index=index,
             t=t,

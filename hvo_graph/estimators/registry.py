@@ -104,13 +104,14 @@ def _kalman(method: Method, options: EstimatorOptions) -> Estimator:
 
 def _kalman_measured(method: Method, options: EstimatorOptions) -> Estimator:
     """The paper's filter given what the smoother is given: R_k from the front end's
-    covariances, the smoother's process noise, and world-frame velocity integration."""
+    covariances, the process noise fitted to the sequence, and world-frame velocity
+    integration."""
     from hvo_graph.estimators.kalman import KalmanBaseline
-    from hvo_graph.estimators.process_noise import DEFAULT_ACCELERATION_SIGMA, kalman_process_noise
 
     return KalmanBaseline(
         r_preset="measured",
-        process_noise=kalman_process_noise(DEFAULT_ACCELERATION_SIGMA),
+        process_noise="auto",
+        velocity_updates="gaps",
         seed=options.seed,
         world_frame_velocity=True,
     )

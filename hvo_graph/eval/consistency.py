@@ -1,4 +1,4 @@
-"""Consistency of the front end against ground truth: track error, pose NEES, keyframes.
+"""Consistency against ground truth: track error, measurement and estimate NEES, keyframes.
 
 Functions of measurement records and trajectories only.
 """
@@ -11,6 +11,8 @@ from collections.abc import Sequence
 import gtsam
 import numpy as np
 
+from hvo_graph.errors import InputError
+from hvo_graph.eval.metrics import match_timestamps
 from hvo_graph.geometry.camera import CameraModel
 from hvo_graph.types import FrameMeasurement, FrameObservations, Plane, Trajectory
 
@@ -79,3 +81,42 @@ def keyframe_switches(frames: Sequence[FrameMeasurement]) -> tuple[list[int], li
             switches.append(f.index)
             keyframes.append(current)
     return switches, keyframes
+
+
+def trajectory_nees(
+    estimate: Trajectory, truth: Trajectory, *, t_start: float | None = None
+) -> tuple[float, float]:
+    """Mean NEES per degree of freedom of an estimate's pose and twist.
+
+    Pose: delta = Log(T_est^-1 T_true) (right perturbation, the covariance's
+    convention) against the pose block; twist: e = xi_true - xi_est against the
+    twist block of ``estimate.covariances``. 1 on average when the covariances
+    describe the errors; above 1 the estimate is overconfident.
+
+    Args:
+        estimate: with (K, 12, 12) covariances; frames matched to ``truth`` by time.
+        truth: ground truth.
+        t_start: only frames with t >= t_start (None: all).
+    Returns:
+        (pose NEES / 6, twist NEES / 6), averaged over the matched frames.
+    Raises:
+        InputError: no covariances, or no frame matched.
+    """
+    if estimate.covariances is None:
+        raise InputError("estimate: no covariances to check (run with covariance on)")
+    i_est, i_true = match_timestamps(estimate.t, truth.t, 1e-6)
+    if t_start is not None:
+        keep = estimate.t[i_est] >= t_start
+        i_est, i_true = i_est[keep], i_true[keep]
+    if len(i_est) == 0:
+        raise InputError("estimate: no frame matches the ground truth's times")
+    pose, twist = [], []
+    for i, j in zip(i_est, i_true, strict=True):
+        est = gtsam.Pose3(gtsam.Rot3(estimate.rotations[i]), estimate.positions[i])
+        true = gtsam.Pose3(gtsam.Rot3(truth.rotations[j]), truth.positions[j])
+        delta = gtsam.Pose3.Logmap(est.between(true))
+        C = estimate.covariances[i]
+        pose.append(float(delta @ np.linalg.solve(C[:6, :6], delta)) / 6.0)
+        e = truth.twists[j] - estimate.twists[i]
+        twist.append(float(e @ np.linalg.solve(C[6:, 6:], e)) / 6.0)
+    return float(np.mean(pose)), float(np.mean(twist))
