@@ -92,6 +92,12 @@ RANSAC_SIGMAS = 5.0
 #: The automatic RANSAC threshold is at least this many pixels (noise-free input).
 MIN_RANSAC_PX = 0.5
 
+#: Fewest shared points for RANSAC and the gates. With 5, a 4-point sample has one
+#: spare point to judge and a good point is often "rejected": on a near-hover draw
+#: with 5 points, one of them nearly collinear with two others, dropping a corner
+#: left a near-degenerate 4-point pose whose error was 3x its covariance (NEES 7).
+ROBUST_MIN_POINTS = 6
+
 #: Per-point gate after the pose refinement: chi^2 (2 dof) of the transfer residual
 #: under its covariance; 13.8 is the 99.9 % quantile.
 OUTLIER_CHI2 = 13.815510557964274
@@ -108,8 +114,9 @@ class FrontEndConfig:
             Zero (noise-free input) is floored at ``MIN_PIXEL_SIGMA`` so the
             covariances, and the fusion built on them, stay well posed.
         min_points: fewest shared points for a measurement (>= 4).
-        ransac: RANSAC (OpenCV) on H_d whenever a frame shares more than 4
-            points with its reference; False: least squares on every point.
+        ransac: RANSAC (OpenCV) on H_d whenever a frame shares at least
+            ``ROBUST_MIN_POINTS`` (6) points with its reference; False: least
+            squares on every point.
         ransac_threshold_px: RANSAC inlier threshold in pixels; None:
             ``RANSAC_SIGMAS`` pixel sigmas, at least ``MIN_RANSAC_PX``.
         outlier_chi2: after the pose refinement, points whose transfer residual
@@ -311,7 +318,7 @@ class MeasurementFrontEnd:
         # RANSAC's inliers start the refinement; the gate at the refined pose, on every
         # shared point, decides (RANSAC's mask comes from a noisy minimal sample).
         R, T, info = self._refine(R, T, m_ref[start], m_cur[start], plane)
-        keep = self._gate(R, T, m_ref, m_cur, plane)
+        keep = self._gate(R, T, m_ref, m_cur, plane, info)
         if np.count_nonzero(keep) < self.config.min_points:
             return None, None, None
         self._reject(shared[~keep])
@@ -358,14 +365,26 @@ class MeasurementFrontEnd:
         return R, T, info
 
     def _gate(
-        self, R: np.ndarray, T: np.ndarray, m_ref: np.ndarray, m_cur: np.ndarray, plane: Plane
+        self,
+        R: np.ndarray,
+        T: np.ndarray,
+        m_ref: np.ndarray,
+        m_cur: np.ndarray,
+        plane: Plane,
+        info: np.ndarray,
     ) -> np.ndarray:
-        """Inlier mask of the chi^2 gate on the transfer residuals (all True without gate)."""
+        """Inlier mask of the chi^2 gate on the transfer residuals (all True without gate).
+
+        A residual's covariance is the pixels' Sigma_i plus the pose's own uncertainty
+        J_i info^-1 J_i^T: a pose fitted on few points extrapolates poorly to the others,
+        and gating them on Sigma_i alone rejected good points.
+        """
         limit = self.config.outlier_chi2
-        if limit is None or len(m_ref) <= self.config.min_points:
+        if limit is None or len(m_ref) < ROBUST_MIN_POINTS:
             return np.ones(len(m_ref), dtype=bool)
         lin = linearize_transfer(R, T, m_ref, m_cur, plane, self._sigma)
         cov = self._sigma**2 * (np.eye(2)[None] + lin.A @ np.transpose(lin.A, (0, 2, 1)))
+        cov = cov + lin.J @ np.linalg.solve(info, np.transpose(lin.J, (0, 2, 1)))
         chi2 = np.einsum(
             "ni,ni->n", lin.residual, np.linalg.solve(cov, lin.residual[..., None])[..., 0]
         )
@@ -402,7 +421,7 @@ class MeasurementFrontEnd:
         With ``plane`` None (n* unknown), feeds the normal estimation and
         returns None until n* is known.
         """
-        threshold = self.config.ransac_px if len(m_ref) > 4 else None
+        threshold = self.config.ransac_px if len(m_ref) >= ROBUST_MIN_POINTS else None
         H, inliers = estimate_homography(
             m_ref,
             m_cur,
@@ -487,7 +506,7 @@ class MeasurementFrontEnd:
         w, v = velocity_known_normal(m_mid, mdot, n_mid, d_mid)
         A = velocity_design_matrix(m_mid, n_mid)
         limit = self.config.outlier_chi2
-        if limit is not None and len(m_mid) > self.config.min_points:
+        if limit is not None and len(m_mid) >= ROBUST_MIN_POINTS:
             # The same gate as the pose's, on the flow residuals (variance 2 s^2 / dt^2).
             residual = (mdot[:, :2].ravel() - A @ np.concatenate((w, v / d_mid))).reshape(-1, 2)
             keep = np.sum(residual**2, axis=1) * dt**2 / (2.0 * self._sigma**2) <= limit
