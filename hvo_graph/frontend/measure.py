@@ -3,38 +3,25 @@
 For every frame k (paper Section III, NOTES sections 2-3):
 
 - **pose** from the discrete homography H_d between the reference frame F*
-  (frame 0) and frame k: DLT on the normalized points shared with the
-  reference, Euclidean normalization, then (R, T) with the known n*, d* by the
-  known-normal path (well conditioned near H_d = I), refined by a few
+  (frame 0 or a keyframe) and frame k: DLT on the normalized points shared
+  with the reference (RANSAC from 6 points), Euclidean normalization, then
+  (R, T) with the known n*, d* by the known-normal path, refined by
   Gauss-Newton steps on the transfer error (the near-maximum-likelihood pose
-  under pixel noise). Optionally (``pose_solver="ippe"``) OpenCV's
-  ``solvePnP(SOLVEPNP_IPPE)`` on the plane points instead: the per-frame method
-  a user would pick without this library.
-- **velocity** from the continuous homography H_c between frames k-1 and k:
-  optical flow by finite difference, mdot = (m_k - m_{k-1}) / dt at the
-  midpoint m = (m_{k-1} + m_k) / 2, plane in the *current* frame
-  n(t) = R n*, d(t) = d* + n(t)^T T (interpolated to mid-interval), and the
-  linear least-squares solve for (w, v/d) with the normal known. The result is
-  the body twist at t_{k-1/2} (finite-difference flow is the average flow over
-  the interval).
+  under pixel noise); points failing a chi^2 gate at the refined pose are left
+  out, and tracks failing it repeatedly are excluded (off the plane).
+  Optionally (``pose_solver="ippe"``) OpenCV's ``solvePnP(SOLVEPNP_IPPE)``.
+- **velocity** from the continuous homography H_c between frames k-1 and k
+  (:func:`~hvo_graph.frontend.velocity.flow_twist`), with the plane moved to
+  mid-interval: n(t) = R n*, d(t) = d* + n(t)^T T.
 
-Covariances are first-order (linearized) propagations of isotropic pixel
-noise sigma (``pixel_sigma``, in pixels, converted to normalized units by the
-mean focal length):
-
-- pose: (J^T Sigma^-1 J)^-1 of the transfer residuals, where each point's
-  residual covariance counts the noise of both its current and its reference
-  observation: Sigma_i = s^2 (I + A_i A_i^T), A_i = d pi(X_i) / d m*_i;
-- velocity: s_f^2 (A^T A)^-1 of the 2N x 6 flow system with
-  s_f^2 = 2 s^2 / dt^2 (two independent noisy frames per flow vector).
-
-The pose covariance is reported in two parts (``PoseMeasurement.reference_covariance``):
-the reference frame's pixel noise is one draw shared by every pose measured
-against that reference (their errors are correlated through it), the current
-frame's noise is independent from frame to frame
-(:func:`~hvo_graph.geometry.transfer.pose_covariance_parts`). Consecutive flows
-share a frame, and a flow shares its pixels with the two poses it lies
-between; the velocity covariance does not say so. See docs/method.md.
+Covariances are first-order propagations of isotropic pixel noise sigma
+(``pixel_sigma``, pixels, over the mean focal length). The pose's,
+(J^T Sigma^-1 J)^-1 with Sigma_i = s^2 (I + A_i A_i^T), is reported in two
+parts (:func:`~hvo_graph.geometry.transfer.pose_covariance_parts`): the
+reference frame's pixel noise (``PoseMeasurement.reference_covariance``) is one
+draw shared by every pose measured against it, the current frame's is
+independent from frame to frame. A flow shares its pixels with the two poses
+it lies between; the velocity covariance does not say so. See docs/method.md.
 """
 
 from __future__ import annotations
@@ -46,12 +33,8 @@ import cv2
 import numpy as np
 
 from hvo_graph.errors import InputError, as_integer, as_number
+from hvo_graph.frontend.velocity import flow_twist
 from hvo_graph.geometry.camera import CameraModel
-from hvo_graph.geometry.continuous import (
-    body_twist_from_scene_motion,
-    velocity_design_matrix,
-    velocity_known_normal,
-)
 from hvo_graph.geometry.decomposition import (
     decompose_homography,
     motion_from_homography_known_normal,
@@ -64,10 +47,10 @@ from hvo_graph.geometry.discrete import (
 )
 from hvo_graph.geometry.transfer import (
     keyframe_plane_jacobian,
-    linearize_transfer,
     pose_covariance_parts,
     pose_normal_equations,
     retract_motion,
+    transfer_chi2,
 )
 from hvo_graph.types import (
     FrameMeasurement,
@@ -259,14 +242,8 @@ class MeasurementFrontEnd:
         frame = _Frame(obs.index, obs.t, ids, m, R, T)
         velocity = self._measure_velocity(frame) if self._previous is not None else None
         self._previous = frame
-        return FrameMeasurement(
-            obs.index,
-            obs.t,
-            pose,
-            velocity,
-            num_points=len(obs.ids),
-            num_rejected=self._rejected_now + len(obs.ids) - len(ids),
-        )
+        rejected = self._rejected_now + len(obs.ids) - len(ids)
+        return FrameMeasurement(obs.index, obs.t, pose, velocity, len(obs.ids), rejected)
 
     @property
     def excluded_tracks(self) -> frozenset[int]:
@@ -373,22 +350,11 @@ class MeasurementFrontEnd:
         plane: Plane,
         info: np.ndarray,
     ) -> np.ndarray:
-        """Inlier mask of the chi^2 gate on the transfer residuals (all True without gate).
-
-        A residual's covariance is the pixels' Sigma_i plus the pose's own uncertainty
-        J_i info^-1 J_i^T: a pose fitted on few points extrapolates poorly to the others,
-        and gating them on Sigma_i alone rejected good points.
-        """
+        """Inlier mask of the chi^2 gate on the transfer residuals (all True without gate)."""
         limit = self.config.outlier_chi2
         if limit is None or len(m_ref) < ROBUST_MIN_POINTS:
             return np.ones(len(m_ref), dtype=bool)
-        lin = linearize_transfer(R, T, m_ref, m_cur, plane, self._sigma)
-        cov = self._sigma**2 * (np.eye(2)[None] + lin.A @ np.transpose(lin.A, (0, 2, 1)))
-        cov = cov + lin.J @ np.linalg.solve(info, np.transpose(lin.J, (0, 2, 1)))
-        chi2 = np.einsum(
-            "ni,ni->n", lin.residual, np.linalg.solve(cov, lin.residual[..., None])[..., 0]
-        )
-        return chi2 <= limit
+        return transfer_chi2(R, T, m_ref, m_cur, plane, self._sigma, info) <= limit
 
     def _switch_keyframe(self, shared_with_reference: int, ids: np.ndarray, m: np.ndarray) -> bool:
         """Make the previous frame the reference when it sees clearly more of the current points.
@@ -500,29 +466,9 @@ class MeasurementFrontEnd:
         d_mid = float(np.mean(distances))
         if d_mid <= 0:
             return None
-        dt = frame.t - prev.t
-        m_mid = 0.5 * (m0 + m1)
-        mdot = (m1 - m0) / dt
-        w, v = velocity_known_normal(m_mid, mdot, n_mid, d_mid)
-        A = velocity_design_matrix(m_mid, n_mid)
-        limit = self.config.outlier_chi2
-        if limit is not None and len(m_mid) >= ROBUST_MIN_POINTS:
-            # The same gate as the pose's, on the flow residuals (variance 2 s^2 / dt^2).
-            residual = (mdot[:, :2].ravel() - A @ np.concatenate((w, v / d_mid))).reshape(-1, 2)
-            keep = np.sum(residual**2, axis=1) * dt**2 / (2.0 * self._sigma**2) <= limit
-            if np.count_nonzero(keep) < self.config.min_points:
-                return None
-            if not keep.all():
-                m_mid, mdot = m_mid[keep], mdot[keep]
-                w, v = velocity_known_normal(m_mid, mdot, n_mid, d_mid)
-                A = velocity_design_matrix(m_mid, n_mid)
-        twist = body_twist_from_scene_motion(w, v)
-        cov_wu = (2.0 * self._sigma**2 / dt**2) * np.linalg.inv(A.T @ A)
-        # [w_b; v_b] = -[w; d u]
-        J = -np.diag([1.0, 1.0, 1.0, d_mid, d_mid, d_mid])
-        covariance = J @ cov_wu @ J.T
-        return VelocityMeasurement(
-            twist, 0.5 * (covariance + covariance.T), 0.5 * (prev.t + frame.t), dt
+        limit = self.config.outlier_chi2 if len(m0) >= ROBUST_MIN_POINTS else None
+        return flow_twist(
+            m0, m1, prev.t, frame.t, Plane(d_mid, n_mid), self._sigma, limit, self.config.min_points
         )
 
 

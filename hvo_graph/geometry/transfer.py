@@ -156,6 +156,32 @@ def pose_covariance_parts(
     return 0.5 * (current + current.T), 0.5 * (reference + reference.T)
 
 
+def transfer_chi2(
+    R: np.ndarray,
+    T: np.ndarray,
+    m_ref: np.ndarray,
+    m_cur: np.ndarray,
+    plane: Plane,
+    sigma: float,
+    info: np.ndarray,
+) -> np.ndarray:
+    """(N,) chi^2 (2 dof) of each point's transfer residual at a fitted motion (R, T).
+
+    The residual's covariance is the pixels' Sigma_i plus the motion's own
+    uncertainty J_i info^-1 J_i^T: a motion fitted on few points extrapolates
+    poorly to the others, and Sigma_i alone would call good points outliers.
+
+    Args:
+        R, T, m_ref, m_cur, plane, sigma: as :func:`linearize_transfer`.
+        info: (6, 6) information matrix of the fitted motion.
+    """
+    lin = linearize_transfer(R, T, m_ref, m_cur, plane, sigma)
+    cov = sigma**2 * (np.eye(2)[None] + lin.A @ np.transpose(lin.A, (0, 2, 1)))
+    cov = cov + lin.J @ np.linalg.solve(info, np.transpose(lin.J, (0, 2, 1)))
+    whitened = np.linalg.solve(cov, lin.residual[..., None])[..., 0]
+    return np.einsum("ni,ni->n", lin.residual, whitened)
+
+
 def keyframe_plane_jacobian(
     R: np.ndarray,
     T: np.ndarray,

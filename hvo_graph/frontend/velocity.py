@@ -1,0 +1,65 @@
+"""The twist from the continuous homography H_c of one frame pair (paper Section III-B).
+
+Optical flow by finite difference, mdot = (m1 - m0) / dt at the midpoint
+m = (m0 + m1) / 2, and the linear least-squares solve for (w, v/d) with the
+plane (n, d) of mid-interval known (:func:`~hvo_graph.geometry.continuous.velocity_known_normal`).
+The result is the body twist at the middle of the interval.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from hvo_graph.geometry.continuous import (
+    body_twist_from_scene_motion,
+    velocity_design_matrix,
+    velocity_known_normal,
+)
+from hvo_graph.types import Plane, VelocityMeasurement
+
+
+def flow_twist(
+    m0: np.ndarray,
+    m1: np.ndarray,
+    t0: float,
+    t1: float,
+    plane: Plane,
+    sigma: float,
+    outlier_chi2: float | None = None,
+    min_points: int = 4,
+) -> VelocityMeasurement | None:
+    """The H_c twist of the points m0 (time t0) -> m1 (time t1), with its covariance.
+
+    Args:
+        m0, m1: (N, 3) normalized points of the same tracks in the two frames.
+        t0, t1: their times, t1 > t0 (seconds).
+        plane: n(t), d(t) in the camera frame at mid-interval.
+        sigma: pixel noise in normalized units; the flow's variance is 2 sigma^2 / dt^2
+            per coordinate (two independent noisy frames).
+        outlier_chi2: points whose flow residual exceeds this chi^2 (2 dof) are left
+            out and the twist solved again; None: no gate.
+        min_points: fewest points left for a twist (None below).
+    Returns:
+        The body twist [w; v] at (t0 + t1) / 2 with covariance
+        s_f^2 J (A^T A)^-1 J^T, s_f^2 = 2 sigma^2 / dt^2, J = -diag(1, 1, 1, d, d, d).
+    """
+    dt = t1 - t0
+    n, d = plane.normal, plane.distance
+    m_mid = 0.5 * (m0 + m1)
+    mdot = (m1 - m0) / dt
+    w, v = velocity_known_normal(m_mid, mdot, n, d)
+    A = velocity_design_matrix(m_mid, n)
+    if outlier_chi2 is not None:
+        residual = (mdot[:, :2].ravel() - A @ np.concatenate((w, v / d))).reshape(-1, 2)
+        keep = np.sum(residual**2, axis=1) * dt**2 / (2.0 * sigma**2) <= outlier_chi2
+        if np.count_nonzero(keep) < min_points:
+            return None
+        if not keep.all():
+            m_mid, mdot = m_mid[keep], mdot[keep]
+            w, v = velocity_known_normal(m_mid, mdot, n, d)
+            A = velocity_design_matrix(m_mid, n)
+    twist = body_twist_from_scene_motion(w, v)
+    cov_wu = (2.0 * sigma**2 / dt**2) * np.linalg.inv(A.T @ A)
+    J = -np.diag([1.0, 1.0, 1.0, d, d, d])  # [w_b; v_b] = -[w; d u]
+    covariance = J @ cov_wu @ J.T
+    return VelocityMeasurement(twist, 0.5 * (covariance + covariance.T), 0.5 * (t0 + t1), dt)
