@@ -46,6 +46,19 @@ def finite_float(minimum: float, *, strict: bool) -> Callable[[str], float]:
     return parse
 
 
+def acceleration_sigma_value(text: str) -> str | float | tuple[float, float]:
+    """``--acceleration-sigma``: "auto", one number (both), or "angular,linear" (each > 0)."""
+    if text.strip() == "auto":
+        return "auto"
+    parse = finite_float(0.0, strict=True)
+    parts = [parse(p) for p in text.split(",")]
+    if len(parts) == 1:
+        return parts[0]
+    if len(parts) == 2:
+        return (parts[0], parts[1])
+    raise argparse.ArgumentTypeError(f"expected 'auto', a number or 'angular,linear', got {text!r}")
+
+
 def names(choices: Sequence[str], what: str) -> Callable[[str], list[str]]:
     """An argparse type: a comma- or space-separated list of distinct ``choices``."""
 

@@ -25,9 +25,15 @@ from collections.abc import Sequence
 from pathlib import Path
 from typing import TYPE_CHECKING
 
-from hvo_graph.arguments import finite_float, int_at_least
+from hvo_graph.arguments import acceleration_sigma_value, finite_float, int_at_least
 from hvo_graph.errors import InputError
-from hvo_graph.estimators.registry import COMMAND_METHODS, KALMAN_R_PRESETS, ROBUST_LOSSES
+from hvo_graph.estimators.registry import (
+    COMMAND_METHODS,
+    KALMAN_R_PRESETS,
+    ROBUST_LOSSES,
+    VELOCITY_FACTOR_POLICIES,
+    check_applicable,
+)
 
 if TYPE_CHECKING:  # the CLI imports the heavy modules lazily, per subcommand
     from hvo_graph.geometry.camera import CameraModel
@@ -91,6 +97,7 @@ def build_parser() -> argparse.ArgumentParser:
         description="Write DIR/trajectory.txt (TUM, T_wc), DIR/velocity.csv and, with "
         "--covariance, DIR/covariance.csv.",
     )
+    est.set_defaults(options_parser=est)  # --config values are parsed by these actions
     est.add_argument("--camera", required=True, metavar="FILE", help="camera/scene YAML")
     source = est.add_mutually_exclusive_group(required=True)
     source.add_argument("--tracks", metavar="FILE", help="feature tracks CSV (frame,t,id,u,v)")
@@ -137,8 +144,74 @@ def build_parser() -> argparse.ArgumentParser:
         type=finite_float(0.0, strict=True),
         default=S,
         metavar="PX",
-        help="reject tracks off the plane: RANSAC threshold on H_d in pixels "
-        "(default: off for --tracks, 2 px for --images)",
+        help="RANSAC threshold on H_d in pixels (default: 5 pixel sigmas, at least "
+        "0.5 px, for --tracks; 2 px for --images)",
+    )
+    est.add_argument(
+        "--no-ransac", action="store_true", default=S, help="least squares on every point"
+    )
+    est.add_argument(
+        "--gate-chi2",
+        type=finite_float(0.0, strict=True),
+        default=S,
+        metavar="X2",
+        help="per-point chi^2 gate on the transfer residuals (default 13.8, chi^2_2(0.999))",
+    )
+    est.add_argument("--no-gate", action="store_true", default=S, help="no per-point gate")
+    est.add_argument(
+        "--reject-after",
+        type=int_at_least(1),
+        default=S,
+        metavar="N",
+        help="exclude a track rejected in N frames (default 3)",
+    )
+    model = est.add_argument_group("factor-graph and filter options")
+    model.add_argument(
+        "--acceleration-sigma",
+        type=acceleration_sigma_value,
+        default=S,
+        metavar="auto|S|SW,SV",
+        help="white-noise acceleration of the motion model (rad s^-3/2, m s^-3/2); "
+        "default auto: fitted to the sequence",
+    )
+    model.add_argument(
+        "--robust-threshold",
+        type=finite_float(0.0, strict=True),
+        default=S,
+        metavar="X",
+        help="robust loss threshold on the whitened residual (default 3.55)",
+    )
+    model.add_argument(
+        "--velocity-factors",
+        choices=VELOCITY_FACTOR_POLICIES,
+        default=S,
+        help="H_c twist factors: only where poses leave a gap (default) or all",
+    )
+    model.add_argument(
+        "--independent-poses",
+        action="store_true",
+        default=S,
+        help="treat the H_d poses as independent (no shared reference-frame noise)",
+    )
+    model.add_argument(
+        "--relinearize-threshold",
+        type=finite_float(0.0, strict=True),
+        default=S,
+        metavar="X",
+        help="ISAM2 pose relinearization threshold (rad, m; default 0.05)",
+    )
+    model.add_argument(
+        "--relinearize-skip",
+        type=int_at_least(1),
+        default=S,
+        metavar="N",
+        help="ISAM2 checks relinearization every N updates (default 10)",
+    )
+    est.add_argument(
+        "--config",
+        metavar="FILE",
+        default=None,
+        help="YAML mapping of these options (names without --); the command line wins",
     )
     images = est.add_argument_group("image input (--images)")
     images.add_argument(
@@ -198,8 +271,9 @@ def _simulate(args: argparse.Namespace) -> int:
 def _estimate(args: argparse.Namespace) -> int:
     from hvo_graph.io.config import load_scene
     from hvo_graph.io.tracks import read_tracks, write_tracks
-    from hvo_graph.io.trajectory import write_estimate_dir
-    from hvo_graph.pipeline import estimate
+    from hvo_graph.io.trajectory import write_estimate_dir, write_run_record
+    from hvo_graph.pipeline import FRONT_END_OPTIONS, run_estimate
+    from hvo_graph.report.tables import software_versions
 
     scene = load_scene(args.camera)
     if args.images is not None:
@@ -211,33 +285,147 @@ def _estimate(args: argparse.Namespace) -> int:
             if getattr(args, flag) is not None:
                 raise InputError(f"--{flag.replace('_', '-')}: only for --images input")
         observations = read_tracks(args.tracks)
-    options = {
-        key: getattr(args, key)
-        for key in (
-            "seed",
-            "kalman_r",
-            "kalman_world_velocity",
-            "online",
-            "covariance",
-            "lag",
-            "robust",
-            "pixel_sigma",
-        )
-        if hasattr(args, key)
-    }
-    if hasattr(args, "ransac_px"):
-        options["ransac_threshold_px"] = args.ransac_px
-    elif args.images is not None:
-        options["ransac_threshold_px"] = IMAGE_RANSAC_PX
-    if "robust" in options and options["robust"] == "none":
-        options["robust"] = None
+    if args.config is not None:
+        _apply_config(args, args.config)
+    options = _estimate_options(args)
+    check_applicable(
+        args.method,
+        [k for k in options if k not in FRONT_END_OPTIONS],
+        spell=lambda name: _FLAGS.get(name, "--" + name.replace("_", "-")),
+    )
     _progress(f"estimating {len(observations)} frames with --method {args.method}")
     start = time.perf_counter()
-    trajectory = estimate(observations, scene, method=args.method, **options)
-    _progress(f"done in {time.perf_counter() - start:.1f} s")
-    write_estimate_dir(args.out, trajectory)
-    print(f"{PROG} estimate: wrote {len(trajectory)} frames ({args.method}) to {args.out}")
+    run = run_estimate(observations, scene, method=args.method, **options)
+    seconds = time.perf_counter() - start
+    _progress(f"done in {seconds:.1f} s")
+    write_estimate_dir(args.out, run.trajectory)
+    record = {
+        "command": "estimate",
+        **run.summary(),
+        "inputs": {
+            "camera": str(args.camera),
+            **({"images": str(args.images)} if args.images else {"tracks": str(args.tracks)}),
+            **({"config": str(args.config)} if args.config else {}),
+        },
+        "wall_time_s": round(seconds, 3),
+        "software": f"hvo-graph {_version()}, {software_versions()}",
+    }
+    write_run_record(args.out, record)
+    counts = run.summary()["counts"]
+    rejected = counts["rejected_points"]  # type: ignore[index]
+    note = f"; {rejected} track points rejected as outliers" if rejected else ""
+    print(
+        f"{PROG} estimate: wrote {len(run.trajectory)} frames ({args.method}) to {args.out}{note}"
+    )
     return 0
+
+
+#: ``estimate`` options: argparse dest -> library option name.
+_OPTION_OF_DEST = {
+    "seed": "seed",
+    "kalman_r": "kalman_r",
+    "kalman_world_velocity": "kalman_world_velocity",
+    "online": "online",
+    "covariance": "covariance",
+    "lag": "lag",
+    "robust": "robust",
+    "robust_threshold": "robust_threshold",
+    "acceleration_sigma": "acceleration_sigma",
+    "velocity_factors": "velocity_factors",
+    "relinearize_threshold": "relinearize_threshold",
+    "relinearize_skip": "relinearize_skip",
+    "pixel_sigma": "pixel_sigma",
+    "ransac_px": "ransac_threshold_px",
+    "reject_after": "reject_after",
+    "gate_chi2": "outlier_chi2",
+}
+
+#: Library option -> its flag, where the names differ.
+_FLAGS = {
+    "ransac_threshold_px": "--ransac-px",
+    "outlier_chi2": "--gate-chi2",
+    "shared_reference_noise": "--independent-poses",
+}
+
+
+def _estimate_options(args: argparse.Namespace) -> dict[str, object]:
+    """The library options of the flags given (left-out flags keep the library defaults)."""
+    options = {
+        option: getattr(args, dest)
+        for dest, option in _OPTION_OF_DEST.items()
+        if hasattr(args, dest)
+    }
+    if getattr(args, "no_ransac", False):
+        if "ransac_threshold_px" in options:
+            raise InputError("--no-ransac: contradicts --ransac-px")
+        options["ransac"] = False
+    if getattr(args, "no_gate", False):
+        if "outlier_chi2" in options:
+            raise InputError("--no-gate: contradicts --gate-chi2")
+        options["outlier_chi2"] = None
+    if getattr(args, "independent_poses", False):
+        options["shared_reference_noise"] = False
+    if "ransac_threshold_px" not in options and args.images is not None:
+        options["ransac_threshold_px"] = IMAGE_RANSAC_PX
+    if options.get("robust") == "none":
+        options["robust"] = None
+    return options
+
+
+def _apply_config(args: argparse.Namespace, path: str) -> None:
+    """Set the options a YAML config file gives, unless the command line gave them.
+
+    Keys are the option names without "--" (dashes or underscores); values are
+    parsed by the same argument types as on the command line.
+    """
+    import yaml
+
+    from hvo_graph.io._common import read_text
+
+    try:
+        data = yaml.safe_load(read_text(path))
+    except yaml.YAMLError as exc:
+        raise InputError(f"{path}: not valid YAML ({str(exc).splitlines()[0]})") from None
+    if data is None:
+        return
+    if not isinstance(data, dict):
+        raise InputError(f"{path}: expected a mapping of option names to values")
+    actions = {a.dest: a for a in args.options_parser._actions if a.option_strings}
+    fixed = {"camera", "tracks", "images", "out", "config", "help", "method"}
+    for key, value in data.items():
+        dest = str(key).replace("-", "_")
+        action = actions.get(dest)
+        if action is None or dest in fixed:
+            allowed = sorted(d.replace("_", "-") for d in actions if d not in fixed)
+            raise InputError(f"{path}: {key}: unknown option, expected one of {', '.join(allowed)}")
+        if getattr(args, dest, None) not in (None, False):
+            continue  # given on the command line
+        setattr(args, dest, _config_value(path, str(key), action, value))
+
+
+def _config_value(path: str, key: str, action: argparse.Action, value: object) -> object:
+    if action.nargs == 0:  # a store_true flag
+        if not isinstance(value, bool):
+            raise InputError(f"{path}: {key}: expected true or false, got {value!r}")
+        return value
+    text = ",".join(map(str, value)) if isinstance(value, list) else str(value)
+    try:
+        parsed = action.type(text) if action.type else text  # type: ignore[operator]
+    except (argparse.ArgumentTypeError, TypeError, ValueError) as exc:
+        raise InputError(f"{path}: {key}: {exc}") from None
+    if action.choices is not None and parsed not in action.choices:
+        choices = ", ".join(map(str, action.choices))
+        raise InputError(f"{path}: {key}: expected one of {choices}, got {value!r}")
+    return parsed
+
+
+def _version() -> str:
+    from importlib.metadata import PackageNotFoundError, version
+
+    try:
+        return version("hvo-graph")
+    except PackageNotFoundError:
+        return "unknown"
 
 
 def _track_images(args: argparse.Namespace, camera: CameraModel) -> list[FrameObservations]:

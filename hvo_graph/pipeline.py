@@ -13,19 +13,26 @@ the library from an offline pipeline::
 
 from __future__ import annotations
 
+import dataclasses
 from collections.abc import Sequence
+from dataclasses import dataclass
 from typing import Protocol
 
 from hvo_graph.errors import InputError
 from hvo_graph.estimators.base import Estimator
 from hvo_graph.estimators.registry import (
     COMMAND_METHODS,
-    DEFAULT_LAG,
     EstimatorOptions,
     build_estimator,
+    check_applicable,
 )
 from hvo_graph.estimators.registry import method as registry_method
-from hvo_graph.frontend import DEFAULT_PIXEL_SIGMA, FrontEndConfig, measure_sequence
+from hvo_graph.frontend import (
+    DEFAULT_PIXEL_SIGMA,
+    FrontEndConfig,
+    MeasurementFrontEnd,
+    measure_sequence,
+)
 from hvo_graph.geometry.camera import CameraModel
 from hvo_graph.types import FrameMeasurement, FrameObservations, Plane, Trajectory
 
@@ -40,39 +47,35 @@ class SceneLike(Protocol):
     pixel_sigma: float | None
 
 
-def make_estimator(
-    method: str = "smoother",
-    *,
-    seed: int | None = 0,
-    kalman_r: str = "paper-noisy",
-    kalman_world_velocity: bool = False,
-    lag: float = DEFAULT_LAG,
-    robust: str | None = None,
-    covariance: bool = False,
-) -> Estimator:
+#: Front-end options of :func:`measure` / :func:`estimate` (every method reads them).
+FRONT_END_OPTIONS: tuple[str, ...] = (
+    "pixel_sigma",
+    "ransac",
+    "ransac_threshold_px",
+    "outlier_chi2",
+    "reject_after",
+)
+
+
+def make_estimator(method: str = "smoother", **options: object) -> Estimator:
     """Build the estimator behind ``--method`` (the factory of its registry row).
 
     Args:
         method: one of :data:`METHODS`.
-        seed: random initial state of the Kalman filter (paper); None for unseeded.
-        kalman_r: R_k preset of the Kalman filter: "paper-noisy",
-            "paper-noise-free" or "measured" (front-end covariances, diagonal).
-        kalman_world_velocity: rotate measured v into the world frame before the
-            Kalman update (not the paper's form).
-        lag: window of the fixed-lag smoother, seconds.
-        robust: None, "huber" or "cauchy" loss on the smoother's measurement factors.
-        covariance: smoothers also return per-frame marginal covariances.
+        options: :class:`~hvo_graph.estimators.registry.EstimatorOptions` fields,
+            e.g. ``seed`` (the Kalman filter's random initial state), ``kalman_r``
+            ("paper-noisy", "paper-noise-free", "measured"), ``lag`` (fixed-lag
+            window, s), ``robust`` / ``robust_threshold``, ``covariance``,
+            ``acceleration_sigma`` ("auto" or numbers), ``shared_reference_noise``,
+            ``velocity_factors``, ``relinearize_threshold``, ``relinearize_skip``.
+    Raises:
+        InputError: an unknown method or option, or an option that does not apply
+            to ``method`` (never silently ignored).
     """
     _check_method(method)
-    options = EstimatorOptions(
-        seed=seed,
-        kalman_r=kalman_r,
-        kalman_world_velocity=kalman_world_velocity,
-        lag=lag,
-        robust=robust,
-        covariance=covariance,
-    )
-    return build_estimator(method, options)
+    check_applicable(method, options)
+    options.pop("online", None)
+    return build_estimator(method, EstimatorOptions(**options))  # type: ignore[arg-type]
 
 
 def _check_method(method: str) -> None:
@@ -80,25 +83,131 @@ def _check_method(method: str) -> None:
         raise InputError(f"method: expected one of {', '.join(METHODS)}, got {method!r}")
 
 
+def front_end_config(
+    scene: SceneLike, *, method: str = "smoother", **options: object
+) -> FrontEndConfig:
+    """The front end's settings for ``method`` on ``scene`` (pixel noise from the scene
+    unless ``pixel_sigma`` is given; the pose solver of the method's registry row).
+
+    Args:
+        options: :data:`FRONT_END_OPTIONS` (``FrontEndConfig`` fields).
+    """
+    unknown = sorted(set(options) - set(FRONT_END_OPTIONS))
+    if unknown:
+        raise InputError(
+            f"{unknown[0]}: unknown front-end option, expected one of "
+            f"{', '.join(FRONT_END_OPTIONS)}"
+        )
+    given = dict(options)
+    sigma = next(
+        (s for s in (given.pop("pixel_sigma", None), scene.pixel_sigma) if s is not None),
+        DEFAULT_PIXEL_SIGMA,
+    )
+    return FrontEndConfig(
+        pixel_sigma=sigma,
+        pose_solver=registry_method(method).pose_solver,
+        **given,  # type: ignore[arg-type]
+    )
+
+
 def measure(
     observations: Sequence[FrameObservations],
     scene: SceneLike,
     *,
     method: str = "smoother",
-    pixel_sigma: float | None = None,
-    ransac_threshold_px: float | None = None,
+    **front_end: object,
 ) -> list[FrameMeasurement]:
     """Per-frame measurements for ``method``: with its registry row's pose solver
-    (IPPE poses for "ippe", H_d otherwise)."""
-    sigma = next(
-        (s for s in (pixel_sigma, scene.pixel_sigma) if s is not None), DEFAULT_PIXEL_SIGMA
-    )
-    config = FrontEndConfig(
-        pixel_sigma=sigma,
-        ransac_threshold_px=ransac_threshold_px,
-        pose_solver=registry_method(method).pose_solver,
-    )
+    (IPPE poses for "ippe", H_d otherwise) and the :data:`FRONT_END_OPTIONS` given."""
+    config = front_end_config(scene, method=method, **front_end)
     return measure_sequence(observations, scene.camera, scene.plane, config)
+
+
+@dataclass
+class EstimateRun:
+    """Everything one :func:`run_estimate` did, for reports (``run.json``).
+
+    Attributes:
+        method: the method.
+        trajectory: the final (or, with ``online``, causal) estimate.
+        estimator: the estimator after the run (fitted noise, counts).
+        frames: the front end's measurements.
+        front_end: the front end's settings in force.
+        options: the estimator options given.
+        excluded_tracks: track ids the front end left out as off the plane.
+    """
+
+    method: str
+    trajectory: Trajectory
+    estimator: Estimator
+    frames: list[FrameMeasurement]
+    front_end: FrontEndConfig
+    options: dict[str, object]
+    excluded_tracks: frozenset[int] = frozenset()
+
+    def summary(self) -> dict[str, object]:
+        """The run as plain values: settings in force, noise chosen, data rejected."""
+        est = self.estimator
+        defaults = EstimatorOptions()
+        applicable = [o for o in registry_method(self.method).options if o != "online"]
+        settings: dict[str, object] = {o: getattr(defaults, o) for o in applicable}
+        settings.update(self.options)
+        sigma = getattr(est, "acceleration_sigma", None)
+        if sigma is not None:
+            settings["acceleration_sigma"] = list(sigma)
+            fit = getattr(getattr(est, "process_noise", None), "fit", None)
+            settings["acceleration_sigma_fitted"] = fit is not None
+        if hasattr(est, "process_noise") and not hasattr(est, "acceleration_sigma"):
+            settings["kalman_process_noise"] = [float(q) for q in est.process_noise]
+            if settings.get("acceleration_sigma") == "auto":  # the filter's own Q_k
+                settings.pop("acceleration_sigma")
+        counts = {
+            "frames": len(self.frames),
+            "frames_with_pose": sum(f.pose is not None for f in self.frames),
+            "frames_with_velocity": sum(f.velocity is not None for f in self.frames),
+            "points": sum(f.num_points for f in self.frames),
+            "rejected_points": sum(f.num_rejected for f in self.frames),
+            "frames_with_rejections": sum(f.num_rejected > 0 for f in self.frames),
+            "excluded_tracks": sorted(self.excluded_tracks),
+        }
+        if hasattr(est, "velocity_factor_counts"):
+            counts["velocity_factors"] = dict(est.velocity_factor_counts)
+        return {
+            "method": self.method,
+            "options": settings,
+            "front_end": {
+                k: getattr(self.front_end, k) for k in self.front_end.__dataclass_fields__
+            }
+            | {"ransac_px_in_force": self.front_end.ransac_px},
+            "counts": counts,
+        }
+
+
+def run_estimate(
+    observations: Sequence[FrameObservations],
+    scene: SceneLike,
+    method: str = "smoother",
+    *,
+    online: bool = False,
+    **options: object,
+) -> EstimateRun:
+    """:func:`estimate`, keeping what a report needs (the estimator, the measurements)."""
+    _check_method(method)
+    front = {k: options.pop(k) for k in list(options) if k in FRONT_END_OPTIONS}
+    if online:
+        options["online"] = True
+    estimator = make_estimator(method, **options)
+    config = front_end_config(scene, method=method, **front)
+    front_end = MeasurementFrontEnd(scene.camera, scene.plane, config)
+    frames = [front_end.process(obs) for obs in observations]
+    smoothed = estimator.run(frames)
+    trajectory = estimator.online_trajectory() if online else smoothed
+    if not options.get("covariance") and trajectory.covariances is not None:
+        trajectory = dataclasses.replace(trajectory, covariances=None)
+    options.pop("online", None)
+    return EstimateRun(
+        method, trajectory, estimator, frames, config, options, front_end.excluded_tracks
+    )
 
 
 def estimate(
@@ -107,8 +216,6 @@ def estimate(
     method: str = "smoother",
     *,
     online: bool = False,
-    pixel_sigma: float | None = None,
-    ransac_threshold_px: float | None = None,
     **options: object,
 ) -> Trajectory:
     """Estimate the trajectory of a tracked sequence.
@@ -118,21 +225,14 @@ def estimate(
         scene: camera, plane (d*, optionally n*) and pixel noise (contract YAML).
         method: one of :data:`METHODS`.
         online: return the causal (filtered) estimate of each frame instead of
-            the final (smoothed) one.
-        pixel_sigma: overrides the scene's pixel noise (pixels).
-        ransac_threshold_px: reject outlier tracks with RANSAC on H_d.
-        options: passed to :func:`make_estimator`.
+            the final (smoothed) one (methods with "online" in their options).
+        options: front-end options (:data:`FRONT_END_OPTIONS`: ``pixel_sigma``,
+            ``ransac``, ``ransac_threshold_px``, ``outlier_chi2``, ``reject_after``)
+            and estimator options (:func:`make_estimator`), e.g.
+            ``estimate(obs, scene, acceleration_sigma=0.1)``.
     Returns:
-        One pose and twist per frame (and covariances when requested).
+        One pose and twist per frame (and covariances when ``covariance=True``).
+    Raises:
+        InputError: bad input, or an option that does not apply to ``method``.
     """
-    _check_method(method)
-    estimator = make_estimator(method, **options)  # type: ignore[arg-type]
-    frames = measure(
-        observations,
-        scene,
-        method=method,
-        pixel_sigma=pixel_sigma,
-        ransac_threshold_px=ransac_threshold_px,
-    )
-    smoothed = estimator.run(frames)
-    return estimator.online_trajectory() if online else smoothed
+    return run_estimate(observations, scene, method, online=online, **options).trajectory

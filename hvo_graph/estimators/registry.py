@@ -35,6 +35,10 @@ ROBUST_LOSSES: tuple[str, ...] = ("huber", "cauchy")
 DEFAULT_LAG: float = 1.0
 
 
+#: ``velocity_factors`` choices of the factor-graph smoothers.
+VELOCITY_FACTOR_POLICIES: tuple[str, ...] = ("gaps", "all")
+
+
 @dataclass(frozen=True)
 class EstimatorOptions:
     """The options of :func:`build_estimator`; each method reads those it lists.
@@ -45,7 +49,17 @@ class EstimatorOptions:
         kalman_world_velocity: "kalman" rotates measured v into the world frame.
         lag: window of "fixed-lag", seconds.
         robust: None or one of :data:`ROBUST_LOSSES`, on the smoothers' measurements.
-        covariance: the smoothers also return per-frame marginal covariances.
+        robust_threshold: the robust loss's threshold on the whitened residual
+            (None: the smoother's default).
+        covariance: also return per-frame covariances (smoothers: marginals).
+        acceleration_sigma: the motion model's white-noise acceleration (s_w, s_v),
+            one number for both, or "auto" (fitted to the sequence).
+        shared_reference_noise: the smoothers keep the reference frame's shared
+            pixel noise out of the H_d factors and in the marginals.
+        velocity_factors: "gaps" or "all" (:data:`VELOCITY_FACTOR_POLICIES`).
+        relinearize_threshold: ISAM2's pose relinearization threshold (None: default).
+        relinearize_skip: ISAM2 checks relinearization every this many updates
+            (None: default).
     """
 
     seed: int | None = 0
@@ -53,7 +67,13 @@ class EstimatorOptions:
     kalman_world_velocity: bool = False
     lag: float = DEFAULT_LAG
     robust: str | None = None
+    robust_threshold: float | None = None
     covariance: bool = False
+    acceleration_sigma: float | tuple[float, float] | str = "auto"
+    shared_reference_noise: bool = True
+    velocity_factors: str = "gaps"
+    relinearize_threshold: float | None = None
+    relinearize_skip: int | None = None
 
 
 @dataclass(frozen=True)
@@ -66,7 +86,8 @@ class Method:
         pose_solver: the front end's pose solver it reads ("homography": H_d; "ippe").
         command: its place among the ``hvo-graph estimate --method`` choices (0 is
             the default), None when the command does not offer it.
-        options: the :class:`EstimatorOptions` fields it reads.
+        options: the :class:`EstimatorOptions` fields it reads, and "online" when
+            its online (causal) estimates differ from its final ones.
         style: ``Axes.plot`` keyword arguments (color, linestyle, marker).
         build: its factory, None for "smoother-online", read from the run of
             ``online_of``.
@@ -95,11 +116,20 @@ def _raw(method: Method, options: EstimatorOptions) -> Estimator:
 def _kalman(method: Method, options: EstimatorOptions) -> Estimator:
     from hvo_graph.estimators.kalman import KalmanBaseline
 
+    sigma = options.acceleration_sigma
     return KalmanBaseline(
         r_preset=options.kalman_r,
+        # The paper's filter keeps the paper's Q_k unless told otherwise.
+        process_noise=None if sigma == "auto" else _kalman_q(sigma),
         seed=options.seed,
         world_frame_velocity=options.kalman_world_velocity,
     )
+
+
+def _kalman_q(sigma: object) -> object:
+    from hvo_graph.estimators.process_noise import acceleration_sigma, kalman_process_noise
+
+    return kalman_process_noise(acceleration_sigma(sigma))  # type: ignore[arg-type]
 
 
 def _kalman_measured(method: Method, options: EstimatorOptions) -> Estimator:
@@ -120,16 +150,35 @@ def _kalman_measured(method: Method, options: EstimatorOptions) -> Estimator:
 def _graph(method: Method, options: EstimatorOptions) -> Estimator:
     from hvo_graph.estimators.smoother import FactorGraphSmoother
 
+    isam2 = {
+        name: value
+        for name in ("relinearize_threshold", "relinearize_skip")
+        if (value := getattr(options, name)) is not None
+    }
     return FactorGraphSmoother(
         solver=str(method.solver),
         lag=options.lag,
+        acceleration_sigma=options.acceleration_sigma,
+        shared_reference_noise=options.shared_reference_noise,
+        velocity_factors=options.velocity_factors,
         robust=options.robust,
+        robust_threshold=options.robust_threshold,
         compute_covariance=options.covariance,
+        **isam2,  # type: ignore[arg-type]
     )
 
 
-_KALMAN = ("seed", "kalman_r", "kalman_world_velocity")
-_GRAPH = ("robust", "covariance")
+_KALMAN = ("seed", "kalman_r", "kalman_world_velocity", "covariance", "acceleration_sigma")
+_GRAPH = (
+    "robust",
+    "robust_threshold",
+    "covariance",
+    "acceleration_sigma",
+    "shared_reference_noise",
+    "velocity_factors",
+    "online",
+)
+_ISAM2 = ("relinearize_threshold", "relinearize_skip")
 
 #: Every method, in table order.
 METHODS: tuple[Method, ...] = (
@@ -156,7 +205,7 @@ METHODS: tuple[Method, ...] = (
         "Kalman (measured R)",
         "homography",
         None,
-        ("seed",),
+        ("seed", "covariance"),
         {"color": "#E69F00", "linestyle": "-.", "marker": "D"},
         _kalman_measured,
     ),
@@ -165,7 +214,7 @@ METHODS: tuple[Method, ...] = (
         "ISAM2 smoothed",
         "homography",
         0,
-        _GRAPH,
+        (*_GRAPH, *_ISAM2),
         {"color": "#0072B2", "linestyle": "-", "marker": "o"},
         _graph,
         solver="isam2",
@@ -175,7 +224,7 @@ METHODS: tuple[Method, ...] = (
         "ISAM2 online",
         "homography",
         None,
-        _GRAPH,
+        (*_GRAPH, *_ISAM2),
         {"color": "#56B4E9", "linestyle": "-", "marker": "^"},
         online_of="smoother",
     ),
@@ -194,7 +243,7 @@ METHODS: tuple[Method, ...] = (
         "fixed-lag (1 s)",
         "homography",
         2,
-        ("lag", *_GRAPH),
+        ("lag", *_GRAPH, *_ISAM2),
         {"color": "#CC79A7", "linestyle": ":", "marker": "P"},
         _graph,
         solver="fixed-lag",
@@ -256,6 +305,31 @@ def check_methods(methods: Iterable[str]) -> tuple[str, ...]:
         dup = next(m for m in chosen if chosen.count(m) > 1)
         raise InputError(f"methods: {dup!r} is listed twice")
     return chosen
+
+
+#: Every option a method can take: the :class:`EstimatorOptions` fields and "online".
+OPTION_NAMES: tuple[str, ...] = (*EstimatorOptions.__dataclass_fields__, "online")
+
+
+def check_applicable(name: str, given: Iterable[str], *, spell: Callable[[str], str] = str) -> None:
+    """InputError when an option in ``given`` does not apply to method ``name``.
+
+    A flag that would be silently ignored is an error: the message names the
+    option (as ``spell`` writes it, e.g. "--lag") and the methods it applies to.
+    """
+    record = method(name)
+    for option in given:
+        if option not in OPTION_NAMES:
+            raise InputError(
+                f"{spell(option)}: unknown option, expected one of "
+                f"{', '.join(spell(o) for o in OPTION_NAMES)}"
+            )
+        if option not in record.options:
+            users = [m.name for m in METHODS if option in m.options and m.build is not None]
+            raise InputError(
+                f"{spell(option)}: does not apply to method {name!r} "
+                f"(it applies to {', '.join(users) or 'no method'})"
+            )
 
 
 def build_estimator(name: str, options: EstimatorOptions | None = None) -> Estimator:

@@ -75,7 +75,7 @@ from hvo_graph.estimators.process_noise import (
     velocity_variance,
 )
 from hvo_graph.estimators.process_noise import acceleration_sigma as check_acceleration_sigma
-from hvo_graph.estimators.registry import ROBUST_LOSSES, SOLVERS
+from hvo_graph.estimators.registry import ROBUST_LOSSES, SOLVERS, VELOCITY_FACTOR_POLICIES
 from hvo_graph.estimators.solvers import (
     MARGINALIZATION_BLOCKS,
     Backend,
@@ -127,9 +127,6 @@ DEFAULT_RELINEARIZE_THRESHOLD: float = 0.05
 DEFAULT_RELINEARIZE_SKIP: int = 10
 
 _ZERO6 = np.zeros(6)
-
-#: ``velocity_factors`` choices of :class:`FactorGraphSmoother`.
-VELOCITY_FACTOR_POLICIES: tuple[str, ...] = ("gaps", "all")
 
 #: A checked twist measurement: (z, covariance, node frame indices, node weights).
 _TwistMeasurement = tuple[np.ndarray, np.ndarray, list[int], list[float]]

@@ -24,6 +24,8 @@ repr), so a write/read round trip is exact.
 
 from __future__ import annotations
 
+import json
+import math
 from pathlib import Path
 
 import gtsam
@@ -305,3 +307,26 @@ def read_groundtruth_dir(directory: PathLike) -> Trajectory:
     (velocity errors are then not evaluated).
     """
     return _read_dir(directory, GROUNDTRUTH_FILES)
+
+
+def write_run_record(directory: PathLike, record: dict[str, object]) -> Path:
+    """Write ``DIR/run.json``: what produced the estimate in ``directory`` (method,
+    options in force, noise chosen, data rejected, inputs, versions, wall time).
+
+    Non-finite numbers are written as null (JSON has no NaN).
+    """
+    path = Path(directory) / "run.json"
+    atomic_write_text(path, json.dumps(_json_safe(record), indent=2, sort_keys=True) + "\n")
+    return path
+
+
+def _json_safe(value: object) -> object:
+    if isinstance(value, dict):
+        return {str(k): _json_safe(v) for k, v in value.items()}
+    if isinstance(value, list | tuple | set | frozenset):
+        return [_json_safe(v) for v in value]
+    if isinstance(value, np.generic):
+        value = value.item()
+    if isinstance(value, float) and not math.isfinite(value):
+        return None
+    return value
