@@ -40,6 +40,7 @@ figures: $(STAMP)
 	$(BIN)/python experiments/factor_graph_figure.py --out docs/figures
 	$(BIN)/python experiments/compare.py
 	$(BIN)/python experiments/sweep.py
+	$(BIN)/python experiments/generalization.py
 	$(BIN)/python experiments/images.py
 	$(BIN)/python experiments/benchmark.py
 

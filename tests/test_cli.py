@@ -118,33 +118,36 @@ def test_estimate_is_a_thin_layer_over_the_pipeline(tmp_path, monkeypatch):
     sim = tmp_path / "sim"
     assert main(["simulate", "--out", str(sim), "--duration", "1"]) == 0
     calls = []
-    gt = simulate(paper_scenario(duration=1.0)).groundtruth
+    real = hvo_graph.pipeline.run_estimate
 
-    def fake_estimate(observations, scene, method="smoother", **options):
-        calls.append((len(observations), scene.plane.distance, method, options))
-        return gt
+    def spy(observations, scene, method="smoother", **options):
+        calls.append((len(observations), scene.plane.distance, method, dict(options)))
+        return real(observations, scene, method, **options)
 
-    monkeypatch.setattr(hvo_graph.pipeline, "estimate", fake_estimate)
+    monkeypatch.setattr(hvo_graph.pipeline, "run_estimate", spy)
     base = ["estimate", "--camera", str(sim / "camera.yaml"), "--tracks", str(sim / "tracks.csv")]
     assert main([*base, "--out", str(tmp_path / "a")]) == 0
     assert calls[-1] == (31, 2.0, "smoother", {})
-    extra = ["--method", "fixed-lag", "--lag", "2", "--robust", "none", "--online", "--seed", "4"]
-    extra += ["--kalman-r", "measured", "--kalman-world-velocity", "--covariance"]
+    extra = ["--method", "fixed-lag", "--lag", "2", "--robust", "none", "--online"]
+    extra += ["--covariance", "--acceleration-sigma", "0.1,0.2", "--no-ransac", "--gate-chi2", "9"]
     assert main([*base, "--out", str(tmp_path / "b"), *extra, "--pixel-sigma", "0.5"]) == 0
     assert calls[-1][2:] == (
         "fixed-lag",
         {
-            "seed": 4,
-            "kalman_r": "measured",
-            "kalman_world_velocity": True,
             "online": True,
             "covariance": True,
             "lag": 2.0,
             "robust": None,
+            "acceleration_sigma": (0.1, 0.2),
             "pixel_sigma": 0.5,
+            "outlier_chi2": 9.0,
+            "ransac": False,
         },
     )
     assert (tmp_path / "b" / "trajectory.txt").is_file()
+    kalman = ["--method", "kalman", "--seed", "4", "--kalman-r", "measured"]
+    assert main([*base, "--out", str(tmp_path / "c"), *kalman, "--kalman-world-velocity"]) == 0
+    assert calls[-1][3] == {"seed": 4, "kalman_r": "measured", "kalman_world_velocity": True}
 
 
 def test_cli_methods_are_the_pipeline_methods():

@@ -126,7 +126,9 @@ def test_compare_csv_matches_the_pipeline_run_directly(compare_run) -> None:
     ):
         label = "smoother-online" if online else method
         # seed 1 also seeds the Kalman filter's random initial state
-        trajectory = estimate(scenario.observations, scenario, method, online=online, seed=1)
+        seeded = {"seed": 1} if method == "kalman" else {}
+        options = {"online": True} if online else {}
+        trajectory = estimate(scenario.observations, scenario, method, **seeded, **options)
         s = summarize(error_series(trajectory, scenario.groundtruth), t_start=1.0)
         assert float(by[(1, label)]["position_rmse_m"]) == pytest.approx(s.position_rmse, rel=1e-9)
         assert float(by[(1, label)]["angular_velocity_max_radps"]) == pytest.approx(
