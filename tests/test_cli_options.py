@@ -147,3 +147,10 @@ def test_pipeline_takes_every_knob(scenario):
         estimate(scenario.observations, scenario, speed=2.0)
     no_ransac = run_estimate(scenario.observations, scenario, ransac=False, outlier_chi2=None)
     assert no_ransac.front_end.ransac_px is None and no_ransac.front_end.outlier_chi2 is None
+
+
+def test_the_solver_names_agree_with_the_method_table():
+    from hvo_graph.estimators.choices import SOLVERS
+    from hvo_graph.estimators.registry import METHODS
+
+    assert {m.solver: m.name for m in METHODS if m.solver} == dict(SOLVERS)

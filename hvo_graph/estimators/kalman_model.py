@@ -15,8 +15,8 @@ from dataclasses import dataclass
 import numpy as np
 
 from hvo_graph.errors import InputError, as_matrix, as_number, as_vector
+from hvo_graph.estimators.choices import KALMAN_R_PRESETS
 from hvo_graph.estimators.process_noise import white_noise_blocks
-from hvo_graph.estimators.registry import KALMAN_R_PRESETS
 from hvo_graph.geometry.rotation import euler_to_rotation, rotation_to_euler, skew, wrap_angle
 from hvo_graph.types import FrameMeasurement
 

@@ -20,23 +20,14 @@ from types import MappingProxyType
 from typing import TYPE_CHECKING
 
 from hvo_graph.errors import InputError
+from hvo_graph.estimators.choices import DEFAULT_LAG as DEFAULT_LAG
+from hvo_graph.estimators.choices import KALMAN_R_PRESETS as KALMAN_R_PRESETS
+from hvo_graph.estimators.choices import ROBUST_LOSSES as ROBUST_LOSSES
+from hvo_graph.estimators.choices import SOLVERS as SOLVERS
+from hvo_graph.estimators.choices import VELOCITY_FACTOR_POLICIES as VELOCITY_FACTOR_POLICIES
 
 if TYPE_CHECKING:
     from hvo_graph.estimators.base import Estimator
-
-#: Kalman filter R_k presets: the paper's two diagonals, and "measured" (the diagonal
-#: of the front end's per-frame covariances, converted to state coordinates).
-KALMAN_R_PRESETS: tuple[str, ...] = ("paper-noisy", "paper-noise-free", "measured")
-
-#: Robust losses of the smoother's measurement factors (``gtsam.noiseModel.mEstimator``).
-ROBUST_LOSSES: tuple[str, ...] = ("huber", "cauchy")
-
-#: Window of the fixed-lag smoother, seconds, unless told otherwise.
-DEFAULT_LAG: float = 1.0
-
-
-#: ``velocity_factors`` choices of the factor-graph smoothers.
-VELOCITY_FACTOR_POLICIES: tuple[str, ...] = ("gaps", "all")
 
 
 @dataclass(frozen=True)
@@ -272,9 +263,6 @@ METHOD_TITLES: Mapping[str, str] = MappingProxyType({m.name: m.title for m in ME
 COMMAND_METHODS: tuple[str, ...] = tuple(
     m.name for m in sorted((m for m in METHODS if m.command is not None), key=lambda m: m.command)
 )
-
-#: The factor-graph back ends: {solver: method name}.
-SOLVERS: Mapping[str, str] = MappingProxyType({m.solver: m.name for m in METHODS if m.solver})
 
 
 def method(name: str) -> Method:

@@ -54,6 +54,7 @@ from gtsam.symbol_shorthand import V, X
 
 from hvo_graph.errors import InputError, as_integer, as_number
 from hvo_graph.estimators.base import Estimator
+from hvo_graph.estimators.choices import ROBUST_LOSSES, SOLVERS, VELOCITY_FACTOR_POLICIES
 from hvo_graph.estimators.factors import (
     _mean_velocity_factor,
     keyframe_between_factor,
@@ -75,7 +76,6 @@ from hvo_graph.estimators.process_noise import (
     velocity_variance,
 )
 from hvo_graph.estimators.process_noise import acceleration_sigma as check_acceleration_sigma
-from hvo_graph.estimators.registry import ROBUST_LOSSES, SOLVERS, VELOCITY_FACTOR_POLICIES
 from hvo_graph.estimators.solvers import (
     MARGINALIZATION_BLOCKS,
     Backend,

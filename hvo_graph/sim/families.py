@@ -11,8 +11,10 @@ harmonics 1-3, random amplitudes and phase). Together they span
 - motion from near-hover to ~2 Hz, 1 m/s and 1 rad/s;
 - off-plane tracks (outliers) and dropped frames.
 
-A draw whose points would leave the image shrinks its motion amplitudes by 0.8
-until the points stay in view, so every seed gives a valid sequence. The
+A draw whose square of points does not fit the first image (a close plane)
+shrinks the square by 0.8 until it does, then one whose points would leave the
+image shrinks its motion amplitudes by 0.8 until they stay in view, so every
+seed gives a valid sequence. The
 generator is seeded by (seed, family name): family draws are reproducible and
 independent of each other.
 """
@@ -264,7 +266,15 @@ def draw(family: str, seed: int, *, duration: float | None = None) -> FamilyDraw
 
 
 def _simulate_in_view(config: ScenarioConfig, family: str, seed: int) -> Scenario:
-    """Simulate, shrinking the motion until every point stays in view."""
+    """Simulate, shrinking the square of points until it fits the first image, then the
+    motion until every point stays in view."""
+    for _ in range(MAX_SHRINKS):
+        first = dataclasses.replace(config, duration=1.0 / config.fps, substeps=1)
+        try:
+            simulate(first)
+            break
+        except InputError:  # the plane is close: the same layout, smaller
+            config = dataclasses.replace(config, half_size=0.8 * config.half_size)
     for _ in range(MAX_SHRINKS):
         try:
             return simulate(config)
