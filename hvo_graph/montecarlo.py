@@ -135,6 +135,16 @@ class SeedResult:
     family: str = ""
 
 
+def _checked_skip(skip: float, duration: float) -> float:
+    """``skip`` seconds, >= 0 and leaving part of a ``duration`` s sequence to evaluate."""
+    skip = as_number(skip, "skip", at_least=0.0, what="a number of seconds")
+    if skip >= duration:
+        raise InputError(
+            f"skip: {skip:g} s leaves no frame of a {duration:g} s sequence to evaluate"
+        )
+    return skip
+
+
 def run_seed(
     config: ScenarioConfig,
     methods: Sequence[str] = METHOD_LABELS,
@@ -159,11 +169,7 @@ def run_seed(
     methods = check_methods(methods)
     if not isinstance(config, ScenarioConfig):
         raise InputError(f"config: expected a ScenarioConfig, got {type(config).__name__}")
-    skip = as_number(skip, "skip", at_least=0.0, what="a number of seconds")
-    if skip >= config.duration:
-        raise InputError(
-            f"skip: {skip:g} s leaves no frame of a {config.duration:g} s sequence to evaluate"
-        )
+    skip = _checked_skip(skip, config.duration)
     result = SeedResult(seed=config.seed, config=config, summaries={}, skip=float(skip))
     return _evaluate(simulate(config), result, methods, keep_series, covariance=False)
 
@@ -190,11 +196,7 @@ def run_family_seed(
     methods = check_methods(methods)
     drawn = draw(job.family, job.seed, duration=job.duration)
     config = drawn.scenario.config
-    skip = as_number(skip, "skip", at_least=0.0, what="a number of seconds")
-    if skip >= config.duration:
-        raise InputError(
-            f"skip: {skip:g} s leaves no frame of a {config.duration:g} s sequence to evaluate"
-        )
+    skip = _checked_skip(skip, config.duration)
     result = SeedResult(
         seed=job.seed, config=config, summaries={}, skip=float(skip), family=job.family
     )
