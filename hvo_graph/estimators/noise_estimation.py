@@ -49,6 +49,16 @@ MAX_SPECTRAL_DENSITY: float = 1e4
 #: Innovation gate of the likelihood: the 99.9 % quantile of chi^2 with 6 dof.
 OUTLIER_GATE: float = 22.457744484825323
 
+#: The densities chosen are the upper ends of their 95 % likelihood intervals (a drop
+#: of chi^2_1(0.95) / 2 = 1.92 in log-likelihood from the maximum), not the maximum
+#: itself: where the poses hardly tell q (rotation absorbs slow translation, and
+#: near-static sequences), the likelihood is flat at small q and its maximum can sit
+#: far below the motion; a twist covariance from such a q was overconfident by 40x.
+INTERVAL_DROP: float = 1.920729410347062
+
+#: Step of the search for the interval's upper end, log10 units.
+INTERVAL_STEP: float = 0.1
+
 #: Fewest pose measurements for an estimate; shorter sequences keep the default.
 MIN_POSES: int = 10
 
@@ -187,7 +197,8 @@ def estimate_process_noise(
     grid: int = 10,
     refinements: int = 2,
 ) -> ProcessNoiseEstimate:
-    """Maximum-likelihood (s_w, s_v) of the WNA motion model from the pose measurements.
+    """(s_w, s_v) of the WNA motion model from the pose measurements: the maximum of the
+    likelihood, then the upper end of each density's 95 % interval (:data:`INTERVAL_DROP`).
 
     Args:
         frames: the sequence's measurements (only the poses are used).
@@ -212,8 +223,31 @@ def estimate_process_noise(
         step /= 3.0
         axis_w = np.clip(best[0] + step * np.arange(-3, 4), lo, hi)
         axis_v = np.clip(best[1] + step * np.arange(-3, 4), lo, hi)
-    sigma = (float(10.0 ** (best[0] / 2)), float(10.0 ** (best[1] / 2)))
+    upper = _upper_interval_ends(t, s, C, best, best_ll, hi)
+    sigma = (float(10.0 ** (upper[0] / 2)), float(10.0 ** (upper[1] / 2)))
     return ProcessNoiseEstimate(sigma, best_ll, len(t))
+
+
+def _upper_interval_ends(
+    t: np.ndarray,
+    s: np.ndarray,
+    C: np.ndarray,
+    best: tuple[float, float],
+    best_ll: float,
+    hi: float,
+) -> tuple[float, float]:
+    """log10 of the largest q_w and q_v whose likelihood, the other density at its
+    optimum, is within :data:`INTERVAL_DROP` of the maximum."""
+    ends = []
+    steps = np.arange(0.0, hi - min(best) + INTERVAL_STEP, INTERVAL_STEP)
+    for axis in (0, 1):
+        trial = np.clip(best[axis] + steps, None, hi)
+        other = np.full(len(trial), best[1 - axis])
+        q_w, q_v = (trial, other) if axis == 0 else (other, trial)
+        ll = log_likelihood(t, s, C, 10.0**q_w, 10.0**q_v, OUTLIER_GATE)
+        inside = np.flatnonzero(ll >= best_ll - INTERVAL_DROP)
+        ends.append(float(trial[inside.max()]) if inside.size else best[axis])
+    return ends[0], ends[1]
 
 
 #: Streaming "auto" process noise: the first refit after this many frames, then at
