@@ -73,7 +73,7 @@ RATIOS: tuple[tuple[str, str], ...] = (
     ("smoother-online", "kalman"),
 )
 
-#: Acceptance bounds of issue 4 on the RMSE ratios (paper noisy scenario, 20 seeds,
+#: The bounds the smoother is held to on the RMSE ratios (paper noisy scenario, 20 seeds,
 #: errors after the first second).
 TARGETS: dict[tuple[str, str], dict[str, float]] = {
     ("smoother", "kalman"): {
@@ -204,7 +204,7 @@ def _titled(label: str) -> str:
 
 
 def tables_markdown(results: Sequence[SeedResult], methods: Sequence[str]) -> str:
-    """The result tables (Markdown): RMSE with CI, mean max, RMSE ratios, issue 4 targets."""
+    """The result tables (Markdown): RMSE with CI, mean max, RMSE ratios and their bounds."""
     header = ["method"] + [f"{title} [{unit}]" for _, title, unit in QUANTITIES]
     rmse_rows, max_rows = [], []
     for m in methods:
@@ -262,7 +262,8 @@ def tables_markdown(results: Sequence[SeedResult], methods: Sequence[str]) -> st
         if target_rows:
             parts += [
                 "",
-                "### Targets of issue 4 (paper noisy scenario, errors after the first second)",
+                "### Bounds the smoother is held to "
+                "(paper noisy scenario, errors after the first second)",
                 "",
                 "A target is met when the mean per-seed ratio is at or below the bound.",
                 "",

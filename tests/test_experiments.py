@@ -75,7 +75,7 @@ def test_compare_writes_tables_csv_and_figures(compare_run) -> None:
     assert [r[0] for r in ratio_rows] == [
         f"{METHOD_TITLES[a]} / {METHOD_TITLES[b]}" for a, b in compare.RATIOS
     ]
-    assert "### Targets of issue 4" in page
+    assert "### Bounds the smoother is held to" in page
     # the tables printed are the ones written
     assert stdout.split("### RMSE: mean", 1)[1] in page
 
