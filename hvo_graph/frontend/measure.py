@@ -29,7 +29,6 @@ from __future__ import annotations
 from collections.abc import Iterable
 from dataclasses import dataclass
 
-import cv2
 import numpy as np
 
 from hvo_graph.errors import InputError, as_integer, as_number
@@ -44,6 +43,7 @@ from hvo_graph.geometry.discrete import (
     camera_pose_from_motion,
     estimate_homography,
     euclidean_homography,
+    ippe_motion,
 )
 from hvo_graph.geometry.transfer import (
     keyframe_plane_jacobian,
@@ -80,6 +80,10 @@ MIN_RANSAC_PX = 0.5
 #: with 5 points, one of them nearly collinear with two others, dropping a corner
 #: left a near-degenerate 4-point pose whose error was 3x its covariance (NEES 7).
 ROBUST_MIN_POINTS = 6
+
+#: Huber threshold (whitened residual norm) of the refinement the gate judges by: an
+#: off-plane track must not pull the pose towards itself and push good points out.
+HUBER = 2.0
 
 #: Per-point gate after the pose refinement: chi^2 (2 dof) of the transfer residual
 #: under its covariance; 13.8 is the 99.9 % quantile.
@@ -285,7 +289,7 @@ class MeasurementFrontEnd:
                 return None, None, None
         plane = self._plane_in(ref)
         if self.config.pose_solver == "ippe":
-            R, T = self._ippe_motion(m_ref, m_cur, plane)
+            R, T = ippe_motion(m_ref, m_cur, plane)
             start = np.ones(len(m_ref), dtype=bool)
         else:
             motion = self._homography_motion(m_ref, m_cur, plane)
@@ -294,7 +298,10 @@ class MeasurementFrontEnd:
             R, T, start = motion
         # RANSAC's inliers start the refinement; the gate at the refined pose, on every
         # shared point, decides (RANSAC's mask comes from a noisy minimal sample).
-        R, T, info = self._refine(R, T, m_ref[start], m_cur[start], plane)
+        robust = self.config.outlier_chi2 is not None and len(m_ref) >= ROBUST_MIN_POINTS
+        R, T, info = self._refine(
+            R, T, m_ref[start], m_cur[start], plane, HUBER if robust else None
+        )
         keep = self._gate(R, T, m_ref, m_cur, plane, info)
         if np.count_nonzero(keep) < self.config.min_points:
             return None, None, None
@@ -330,12 +337,18 @@ class MeasurementFrontEnd:
         return R @ ref.R, R @ ref.T + T, pose
 
     def _refine(
-        self, R: np.ndarray, T: np.ndarray, m_ref: np.ndarray, m_cur: np.ndarray, plane: Plane
+        self,
+        R: np.ndarray,
+        T: np.ndarray,
+        m_ref: np.ndarray,
+        m_cur: np.ndarray,
+        plane: Plane,
+        huber: float | None = None,
     ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """Gauss-Newton steps on the weighted transfer error: (R, T, information)."""
         info = np.eye(6)
-        for _ in range(self.config.refine_iterations + 1):
-            info, grad = pose_normal_equations(R, T, m_ref, m_cur, plane, self._sigma)
+        for _ in range(self.config.refine_iterations + 1 + (3 if huber else 0)):
+            info, grad = pose_normal_equations(R, T, m_ref, m_cur, plane, self._sigma, huber)
             if self.config.pose_solver == "ippe":
                 break  # IPPE is reported as OpenCV gives it, without our refinement
             R, T = retract_motion(R, T, np.linalg.solve(info, grad))
@@ -426,22 +439,6 @@ class MeasurementFrontEnd:
         n = best[0] + best[1]
         self._normal = n / np.linalg.norm(n)
         return True
-
-    def _ippe_motion(
-        self, m_ref: np.ndarray, m_cur: np.ndarray, plane: Plane
-    ) -> tuple[np.ndarray, np.ndarray]:
-        n, d = plane.normal, plane.distance
-        X_star = d * m_ref / (m_ref @ n)[:, None]
-        ok, rvec, tvec = cv2.solvePnP(
-            np.ascontiguousarray(X_star.reshape(-1, 1, 3)),
-            np.ascontiguousarray(m_cur[:, :2]).reshape(-1, 1, 2),
-            np.eye(3),
-            None,
-            flags=cv2.SOLVEPNP_IPPE,
-        )
-        if not ok:
-            raise InputError("solvePnP (IPPE) failed on this frame's plane points")
-        return cv2.Rodrigues(rvec)[0], tvec.ravel()
 
     # -- velocity from H_c ---------------------------------------------------------------------
 

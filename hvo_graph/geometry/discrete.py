@@ -28,6 +28,7 @@ import cv2
 import numpy as np
 
 from hvo_graph.errors import InputError, as_matrix, as_number, as_points, as_vector
+from hvo_graph.types import Plane
 
 #: Smallest accepted ratio sigma_8 / sigma_1 of the (Hartley-normalized) DLT
 #: system: below it the point configuration does not determine H (collinear
@@ -359,3 +360,35 @@ def __getattr__(name: str) -> object:
         )
         return getattr(decomposition, name)
     raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
+
+
+def ippe_motion(
+    m_ref: np.ndarray, m_cur: np.ndarray, plane: Plane
+) -> tuple[np.ndarray, np.ndarray]:
+    """The motion (R, T) of plane points by OpenCV's ``solvePnP(SOLVEPNP_IPPE)``.
+
+    The per-frame method a user would pick without this library: the reference
+    points back-projected onto the plane, X*_i = d* m*_i / (n*^T m*_i), then the
+    planar PnP solution for the current observations.
+
+    Args:
+        m_ref: (N, 3) normalized reference points m*.
+        m_cur: (N, 3) normalized current points m.
+        plane: n* (required) and d* in the reference frame.
+    Returns:
+        (3, 3) R and (3,) T with X = R X* + T.
+    Raises:
+        InputError: when solvePnP fails.
+    """
+    n, d = plane.normal, plane.distance
+    X_star = d * m_ref / (m_ref @ n)[:, None]
+    ok, rvec, tvec = cv2.solvePnP(
+        np.ascontiguousarray(X_star.reshape(-1, 1, 3)),
+        np.ascontiguousarray(m_cur[:, :2]).reshape(-1, 1, 2),
+        np.eye(3),
+        None,
+        flags=cv2.SOLVEPNP_IPPE,
+    )
+    if not ok:
+        raise InputError("solvePnP (IPPE) failed on this frame's plane points")
+    return cv2.Rodrigues(rvec)[0], tvec.ravel()

@@ -110,17 +110,30 @@ def pose_normal_equations(
     m_cur: np.ndarray,
     plane: Plane,
     sigma: float,
+    huber: float | None = None,
 ) -> tuple[np.ndarray, np.ndarray]:
     """Information matrix and gradient of the weighted transfer error at (R, T).
 
-    Arguments as :func:`linearize_transfer`.
+    Arguments as :func:`linearize_transfer`; ``huber``: a Huber threshold on each
+    point's whitened residual norm d_i (iteratively reweighted least squares: weight
+    min(1, huber / d_i)), None for plain least squares.
 
     Returns:
-        (6, 6) information sum_i J_i^T Sigma_i^-1 J_i and (6,) sum_i J_i^T Sigma_i^-1 r_i:
-        the Gauss-Newton step is info^-1 grad, and info^-1 the pose covariance.
+        (6, 6) information sum_i w_i J_i^T Sigma_i^-1 J_i and (6,) sum_i w_i J_i^T
+        Sigma_i^-1 r_i: the Gauss-Newton step is info^-1 grad, and (w = 1) info^-1 the
+        pose covariance.
     """
     lin = linearize_transfer(R, T, m_ref, m_cur, plane, sigma)
-    return np.sum(lin.JtW @ lin.J, axis=0), np.einsum("nij,nj->i", lin.JtW, lin.residual)
+    JtW = lin.JtW
+    if huber is not None:
+        cov = sigma**2 * (np.eye(2)[None] + lin.A @ np.transpose(lin.A, (0, 2, 1)))
+        d = np.sqrt(
+            np.einsum(
+                "ni,ni->n", lin.residual, np.linalg.solve(cov, lin.residual[..., None])[..., 0]
+            )
+        )
+        JtW = JtW * np.minimum(1.0, huber / np.maximum(d, 1e-12))[:, None, None]
+    return np.sum(JtW @ lin.J, axis=0), np.einsum("nij,nj->i", JtW, lin.residual)
 
 
 def pose_covariance_parts(
