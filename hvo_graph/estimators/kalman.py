@@ -53,7 +53,7 @@ from hvo_graph.estimators.kalman_model import (
     state_to_tangent_jacobian,
     transition_matrix,
 )
-from hvo_graph.estimators.measurement_checks import checked_reference_covariance
+from hvo_graph.estimators.measurement_checks import checked_reference_covariance, poses_span
 from hvo_graph.estimators.noise_estimation import estimate_process_noise
 from hvo_graph.estimators.process_noise import (
     DEFAULT_ACCELERATION_SIGMA,
@@ -257,10 +257,9 @@ class KalmanBaseline(Estimator):
                 pose = dataclasses.replace(pose, covariance=pose.covariance - self._shared)
             gaps = self.velocity_updates == "gaps"
             if gaps and velocity is not None and previous is not None and self._online:
-                spanned = previous[0] == self._online[-1].index and (
-                    pose.reference in (previous[1], previous[0])
-                )
-                velocity = None if spanned else velocity
+                last = self._online[-1].index
+                before = previous[1] if previous[0] == last else None
+                velocity = None if poses_span(last, before, pose.reference) else velocity
         return dataclasses.replace(frame, pose=pose, velocity=velocity)
 
     def state_estimate(self, index: int, t: float) -> StateEstimate:

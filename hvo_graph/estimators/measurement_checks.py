@@ -142,3 +142,14 @@ def twist_nodes(
                 "increase lag"
             )
     return nodes, weights
+
+
+def poses_span(previous: int, previous_reference: int | None, reference: int) -> bool:
+    """Whether two consecutive H_d poses already measure the interval between them.
+
+    True when the next frame's pose is against the same reference as frame
+    ``previous``'s (``previous_reference``; None: it had no pose) or against
+    ``previous`` itself: the flow over that interval is made of the same pixels,
+    and an H_c twist there would count them twice.
+    """
+    return reference == previous or previous_reference == reference

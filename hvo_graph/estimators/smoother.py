@@ -66,6 +66,7 @@ from hvo_graph.estimators.measurement_checks import (
     checked_reference_covariance,
     checked_velocity,
     keyframe_model,
+    poses_span,
     twist_nodes,
 )
 from hvo_graph.estimators.noise_estimation import ProcessNoiseSchedule
@@ -432,10 +433,10 @@ class FactorGraphSmoother(Estimator):
         reference (or frame k's against the previous frame), measure the H_c interval."""
         if self.velocity_factors == "all" or pose_meas is None or len(self._indices) == 0:
             return False
-        previous, reference = self._indices[-1], pose_meas[2]
+        previous = self._indices[-1]
         if nodes != [previous, k]:
             return False
-        return reference == previous or self._pose_reference.get(previous, -1) == reference
+        return poses_span(previous, self._pose_reference.get(previous), pose_meas[2])
 
     def _with_reference_noise(self, position: int, covariance: np.ndarray) -> np.ndarray:
         """The 12x12 marginal plus the shared reference noise the factors left out."""

@@ -61,6 +61,12 @@ class TransferLinearization:
     A: np.ndarray
 
 
+def pixel_covariance(A: np.ndarray, sigma: float) -> np.ndarray:
+    """(N, 2, 2) Sigma_i = sigma^2 (I + A_i A_i^T): a transfer residual's covariance from
+    the noise of its current and its reference observation, A (N, 2, 2)."""
+    return sigma**2 * (np.eye(2)[None] + A @ np.transpose(A, (0, 2, 1)))
+
+
 def linearize_transfer(
     R: np.ndarray,
     T: np.ndarray,
@@ -99,7 +105,7 @@ def linearize_transfer(
         - np.einsum("ni,j->nij", m_ref, n) / depth[:, None, None] ** 2
     )
     A = P @ R @ dXstar[:, :, :2]  # (N, 2, 2)
-    W = np.linalg.inv(sigma**2 * (np.eye(2)[None] + A @ np.transpose(A, (0, 2, 1))))
+    W = np.linalg.inv(pixel_covariance(A, sigma))
     return TransferLinearization(depth, P, J, np.transpose(J, (0, 2, 1)) @ W, residual, A)
 
 
@@ -126,7 +132,7 @@ def pose_normal_equations(
     lin = linearize_transfer(R, T, m_ref, m_cur, plane, sigma)
     JtW = lin.JtW
     if huber is not None:
-        cov = sigma**2 * (np.eye(2)[None] + lin.A @ np.transpose(lin.A, (0, 2, 1)))
+        cov = pixel_covariance(lin.A, sigma)
         d = np.sqrt(
             np.einsum(
                 "ni,ni->n", lin.residual, np.linalg.solve(cov, lin.residual[..., None])[..., 0]
@@ -189,8 +195,9 @@ def transfer_chi2(
         info: (6, 6) information matrix of the fitted motion.
     """
     lin = linearize_transfer(R, T, m_ref, m_cur, plane, sigma)
-    cov = sigma**2 * (np.eye(2)[None] + lin.A @ np.transpose(lin.A, (0, 2, 1)))
-    cov = cov + lin.J @ np.linalg.solve(info, np.transpose(lin.J, (0, 2, 1)))
+    cov = pixel_covariance(lin.A, sigma) + lin.J @ np.linalg.solve(
+        info, np.transpose(lin.J, (0, 2, 1))
+    )
     whitened = np.linalg.solve(cov, lin.residual[..., None])[..., 0]
     return np.einsum("ni,ni->n", lin.residual, whitened)
 
