@@ -1,31 +1,13 @@
-"""The ``hvo-graph`` command: ``simulate``, ``estimate`` and ``evaluate`` (docs/conventions.md).
-
-A thin layer over the library: it parses arguments, reads the contract's files,
-calls :func:`hvo_graph.sim.scenario.simulate`, :func:`hvo_graph.pipeline.estimate`
-or :mod:`hvo_graph.eval.metrics`, and writes the contract's files. Bad input
-(an :class:`~hvo_graph.errors.InputError`, or a file that cannot be read or
-written) prints one line ``hvo-graph: error: ...`` on stderr and exits with
-status 2, like argparse's own usage errors; never a traceback.
-
-Examples::
-
-    hvo-graph simulate --out run/                       # the paper's noisy scenario
-    hvo-graph estimate --camera run/camera.yaml --tracks run/tracks.csv \\
-        --method smoother --out run/smoother
-    hvo-graph evaluate --estimate run/smoother --groundtruth run/
-"""
+"""``hvo-graph estimate``: tracks or images in, the contract's trajectory files out."""
 
 from __future__ import annotations
 
 import argparse
-import json
-import sys
 import time
-from collections.abc import Sequence
-from pathlib import Path
 from typing import TYPE_CHECKING
 
 from hvo_graph.arguments import acceleration_sigma_value, finite_float, int_at_least
+from hvo_graph.cli._common import PROG, package_version, progress
 from hvo_graph.errors import InputError
 from hvo_graph.estimators.registry import (
     COMMAND_METHODS,
@@ -35,11 +17,10 @@ from hvo_graph.estimators.registry import (
     check_applicable,
 )
 
-if TYPE_CHECKING:  # the CLI imports the heavy modules lazily, per subcommand
+if TYPE_CHECKING:  # the heavy modules are imported when the command runs
     from hvo_graph.geometry.camera import CameraModel
     from hvo_graph.types import FrameObservations
 
-PROG = "hvo-graph"
 #: ``--method`` choices, from the method registry (the first is the default).
 METHODS: tuple[str, ...] = COMMAND_METHODS
 #: ``--kalman-r`` choices.
@@ -50,47 +31,8 @@ ROBUST: tuple[str, ...] = ("none", *ROBUST_LOSSES)
 IMAGE_RANSAC_PX = 2.0
 
 
-def _progress(message: str) -> None:
-    """Progress notes go to stderr, and only when a person is watching it."""
-    if sys.stderr.isatty():
-        print(f"{PROG}: {message}", file=sys.stderr, flush=True)
-
-
-def build_parser() -> argparse.ArgumentParser:
-    """The argument parser (subcommands simulate, estimate, evaluate)."""
-    parser = argparse.ArgumentParser(
-        prog=PROG,
-        description="Homography-based visual odometry fused in a GTSAM factor graph.",
-    )
-    sub = parser.add_subparsers(dest="command", metavar="COMMAND", required=True)
-
-    sim = sub.add_parser(
-        "simulate",
-        help="simulate the paper's scenario (tracks, camera and ground truth)",
-        description="Write DIR/camera.yaml, DIR/tracks.csv, DIR/groundtruth.txt (TUM, T_wc) and "
-        "DIR/groundtruth_velocity.csv. Defaults reproduce the paper's noisy run "
-        "(variance 0.05 px^2, 30 fps, 4 points, 10 s).",
-    )
-    sim.add_argument("--out", required=True, metavar="DIR", help="output folder (created)")
-    sim.add_argument("--scenario", choices=("paper",), default="paper", help="scenario (paper)")
-    sim.add_argument("--seed", type=int_at_least(0), default=0, help="noise seed (default 0)")
-    sim.add_argument(
-        "--noise-var",
-        type=finite_float(0.0, strict=False),
-        default=None,
-        metavar="PX2",
-        help="pixel noise variance in px^2 (default 0.05; 0 for the noise-free run)",
-    )
-    sim.add_argument(
-        "--duration", type=finite_float(0.0, strict=True), default=None, metavar="S", help="seconds"
-    )
-    sim.add_argument(
-        "--fps", type=finite_float(0.0, strict=True), default=None, metavar="F", help="frame rate"
-    )
-    sim.add_argument(
-        "--num-points", type=int_at_least(4), default=None, metavar="N", help="plane points"
-    )
-
+def add_parser(sub: argparse._SubParsersAction) -> None:
+    """Register ``estimate`` on the subcommand parsers."""
     est = sub.add_parser(
         "estimate",
         help="estimate the trajectory from tracks",
@@ -228,47 +170,10 @@ def build_parser() -> argparse.ArgumentParser:
         "--save-tracks", metavar="FILE", default=None, help="also write the tracks CSV here"
     )
 
-    ev = sub.add_parser(
-        "evaluate",
-        help="errors of an estimate against ground truth",
-        description="Position (m), orientation (deg), linear (m/s) and angular (rad/s) velocity "
-        "errors, RMSE and max, matched by timestamp.",
-    )
-    ev.add_argument("--estimate", required=True, metavar="DIR", help="an estimate output folder")
-    ev.add_argument("--groundtruth", required=True, metavar="DIR", help="a simulate-style folder")
-    ev.add_argument("--json", action="store_true", help="print one JSON object instead of a table")
-    ev.add_argument(
-        "--skip",
-        type=finite_float(0.0, strict=False),
-        default=None,
-        metavar="SECONDS",
-        help="ignore frames in the first SECONDS after the ground truth's first timestamp",
-    )
-    return parser
+    est.set_defaults(handler=run)
 
 
-def _simulate(args: argparse.Namespace) -> int:
-    from hvo_graph.sim.scenario import paper_scenario, simulate, write_scenario
-
-    overrides = {
-        "seed": args.seed,
-        "noise_var": args.noise_var,
-        "duration": args.duration,
-        "fps": args.fps,
-        "num_points": args.num_points,
-    }
-    config = paper_scenario(noisy=True, **{k: v for k, v in overrides.items() if v is not None})
-    _progress(f"simulating {config.num_frames} frames of {config.num_points} points")
-    scenario = simulate(config)
-    write_scenario(args.out, scenario)
-    print(
-        f"{PROG} simulate: wrote {config.num_frames} frames, {config.num_points} points, "
-        f"noise variance {config.noise_var:g} px^2 to {args.out}"
-    )
-    return 0
-
-
-def _estimate(args: argparse.Namespace) -> int:
+def run(args: argparse.Namespace) -> int:
     from hvo_graph.io.config import load_scene
     from hvo_graph.io.tracks import read_tracks, write_tracks
     from hvo_graph.io.trajectory import write_estimate_dir, write_run_record
@@ -293,11 +198,11 @@ def _estimate(args: argparse.Namespace) -> int:
         [k for k in options if k not in FRONT_END_OPTIONS],
         spell=lambda name: _FLAGS.get(name, "--" + name.replace("_", "-")),
     )
-    _progress(f"estimating {len(observations)} frames with --method {args.method}")
+    progress(f"estimating {len(observations)} frames with --method {args.method}")
     start = time.perf_counter()
     run = run_estimate(observations, scene, method=args.method, **options)
     seconds = time.perf_counter() - start
-    _progress(f"done in {seconds:.1f} s")
+    progress(f"done in {seconds:.1f} s")
     write_estimate_dir(args.out, run.trajectory)
     record = {
         "command": "estimate",
@@ -308,7 +213,7 @@ def _estimate(args: argparse.Namespace) -> int:
             **({"config": str(args.config)} if args.config else {}),
         },
         "wall_time_s": round(seconds, 3),
-        "software": f"hvo-graph {_version()}, {software_versions()}",
+        "software": f"hvo-graph {package_version()}, {software_versions()}",
     }
     write_run_record(args.out, record)
     counts = run.summary()["counts"]
@@ -419,15 +324,6 @@ def _config_value(path: str, key: str, action: argparse.Action, value: object) -
     return parsed
 
 
-def _version() -> str:
-    from importlib.metadata import PackageNotFoundError, version
-
-    try:
-        return version("hvo-graph")
-    except PackageNotFoundError:
-        return "unknown"
-
-
 def _track_images(args: argparse.Namespace, camera: CameraModel) -> list[FrameObservations]:
     from hvo_graph.frontend.tracking import TrackerConfig, tracks_from_images
 
@@ -438,54 +334,5 @@ def _track_images(args: argparse.Namespace, camera: CameraModel) -> list[FrameOb
             max_features=args.max_features, min_tracked=min(args.max_features // 2, 100)
         )
     )
-    _progress(f"tracking features in {args.images}")
+    progress(f"tracking features in {args.images}")
     return tracks_from_images(args.images, camera, fps=args.fps, config=config)
-
-
-def _evaluate(args: argparse.Namespace) -> int:
-    from hvo_graph.eval.metrics import error_series, format_table, summarize
-    from hvo_graph.io.trajectory import read_estimate_dir, read_groundtruth_dir
-
-    estimate = read_estimate_dir(args.estimate)
-    groundtruth = read_groundtruth_dir(args.groundtruth)
-    series = error_series(estimate, groundtruth)
-    t_start = None if args.skip is None else float(groundtruth.t[0]) + args.skip
-    summary = summarize(series, t_start=t_start)
-    if args.json:
-        print(json.dumps(summary.as_dict()))
-    else:
-        name = Path(args.estimate).resolve().name or str(args.estimate)
-        print(format_table({name: summary}))
-    return 0
-
-
-def _os_error_message(exc: OSError) -> str:
-    """'cannot read|write PATH: reason', naming the path the OS complained about."""
-    reason = exc.strerror or str(exc)
-    if exc.filename is None:
-        return reason
-    return f"{exc.filename}: {reason}"
-
-
-def main(argv: Sequence[str] | None = None) -> int:
-    """Run the command line; returns the exit status (0 ok, 2 usage or input error)."""
-    parser = build_parser()
-    try:
-        args = parser.parse_args(argv)
-    except SystemExit as exc:  # argparse: --help (0) or a usage error (2)
-        return int(exc.code or 0)
-    handler = {"simulate": _simulate, "estimate": _estimate, "evaluate": _evaluate}[args.command]
-    try:
-        return handler(args)
-    except InputError as exc:
-        print(f"{PROG}: error: {exc}", file=sys.stderr)
-    except OSError as exc:
-        print(f"{PROG}: error: {_os_error_message(exc)}", file=sys.stderr)
-    except KeyboardInterrupt:
-        print(f"{PROG}: interrupted", file=sys.stderr)
-        return 130
-    return 2
-
-
-if __name__ == "__main__":
-    raise SystemExit(main())
