@@ -14,6 +14,7 @@ Conventions (docs/conventions.md, binding contract):
 from __future__ import annotations
 
 from dataclasses import dataclass, field
+from typing import Any
 
 import numpy as np
 
@@ -172,6 +173,51 @@ class Trajectory:
     def linear_velocity(self) -> np.ndarray:
         """(K, 3) body linear velocity v."""
         return self._twists()[:, 3:]
+
+    def to_evo(self, name: str = "") -> object:
+        """This trajectory as evo's ``PoseTrajectory3D`` (poses T_wc, for evo's plots,
+        ``evo_res`` and metrics). Twists and covariances are not carried over.
+
+        Raises:
+            InputError: when evo is not installed (``pip install evo``).
+        """
+        trajectory: Any = _evo_trajectory_module()
+        poses = np.tile(np.eye(4), (len(self.t), 1, 1))
+        poses[:, :3, :3] = np.asarray(self.rotations, dtype=float)
+        poses[:, :3, 3] = np.asarray(self.positions, dtype=float)
+        out = trajectory.PoseTrajectory3D(
+            timestamps=np.array(self.t, dtype=float), poses_se3=list(poses)
+        )
+        if name:
+            out.meta["name"] = name
+        return out
+
+    @classmethod
+    def from_evo(cls, evo_trajectory: object) -> Trajectory:
+        """A Trajectory (no twists) from evo's ``PoseTrajectory3D``.
+
+        Raises:
+            InputError: when it has no timestamps (evo's ``PosePath3D``).
+        """
+        t = getattr(evo_trajectory, "timestamps", None)
+        if t is None:
+            raise InputError("from_evo: expected an evo PoseTrajectory3D (with timestamps)")
+        poses = np.asarray(evo_trajectory.poses_se3, dtype=float).reshape(-1, 4, 4)  # type: ignore[attr-defined]
+        return cls(
+            t=np.array(t, dtype=float),
+            rotations=poses[:, :3, :3].copy(),
+            positions=poses[:, :3, 3].copy(),
+        )
+
+
+def _evo_trajectory_module() -> object:
+    try:
+        from evo.core import trajectory
+    except ImportError:
+        raise InputError(
+            "evo is not installed: pip install evo (needed only to hand trajectories to evo)"
+        ) from None
+    return trajectory
 
 
 @dataclass(frozen=True)

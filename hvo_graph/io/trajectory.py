@@ -235,6 +235,21 @@ def _check_same_times(t_ref: np.ndarray, t: np.ndarray, ref: Path, other: Path) 
         )
 
 
+def _twists_at(t: np.ndarray, tv: np.ndarray, twists: np.ndarray) -> np.ndarray:
+    """(K, 6) twists at times ``t``: the row of ``tv`` within 1e-6 s, NaN where there is none.
+
+    A ground-truth velocity file need not have one row per pose (e.g. a pose file
+    with fewer rows); hvo_graph.eval associates the full series with a tolerance.
+    """
+    out = np.full((len(t), 6), np.nan)
+    j = np.clip(np.searchsorted(tv, t), 0, len(tv) - 1)
+    j_left = np.clip(j - 1, 0, len(tv) - 1)
+    j = np.where(np.abs(tv[j_left] - t) < np.abs(tv[j] - t), j_left, j)
+    ok = np.abs(tv[j] - t) <= 1e-6
+    out[ok] = twists[j[ok]]
+    return out
+
+
 def _write_dir(directory: PathLike, trajectory: Trajectory, names: tuple[str, ...]) -> None:
     directory = Path(directory)
     directory.mkdir(parents=True, exist_ok=True)
@@ -260,8 +275,11 @@ def _read_dir(directory: PathLike, names: tuple[str, ...]) -> Trajectory:
     trajectory = read_tum(pose_file)
     if vel_file.exists():
         tv, twists = read_velocity(vel_file)
-        _check_same_times(trajectory.t, tv, pose_file, vel_file)
-        trajectory.twists = twists
+        if names == GROUNDTRUTH_FILES:
+            trajectory.twists = _twists_at(trajectory.t, tv, twists)
+        else:
+            _check_same_times(trajectory.t, tv, pose_file, vel_file)
+            trajectory.twists = twists
     if len(names) > 2 and (directory / names[2]).exists():
         tc, cov = read_covariance(directory / names[2])
         _check_same_times(trajectory.t, tc, pose_file, directory / names[2])
@@ -304,7 +322,10 @@ def read_groundtruth_dir(directory: PathLike) -> Trajectory:
     """Read a ground-truth folder (``groundtruth.txt`` + ``groundtruth_velocity.csv``).
 
     ``groundtruth_velocity.csv`` is optional: without it the twists are None
-    (velocity errors are then not evaluated).
+    (velocity errors are then not evaluated). Its rows need not match the poses':
+    each pose takes the velocity row at its time (within 1e-6 s), NaN when there
+    is none (:func:`hvo_graph.io.trajectory_paths.read_groundtruth` keeps the
+    whole series for association with a tolerance).
     """
     return _read_dir(directory, GROUNDTRUTH_FILES)
 
