@@ -192,8 +192,8 @@ class Trajectory:
             out.meta["name"] = name
         return out
 
-    @classmethod
-    def from_evo(cls, evo_trajectory: object) -> Trajectory:
+    @staticmethod
+    def from_evo(evo_trajectory: object) -> Trajectory:
         """A Trajectory (no twists) from evo's ``PoseTrajectory3D``.
 
         Raises:
@@ -203,7 +203,7 @@ class Trajectory:
         if t is None:
             raise InputError("from_evo: expected an evo PoseTrajectory3D (with timestamps)")
         poses = np.asarray(evo_trajectory.poses_se3, dtype=float).reshape(-1, 4, 4)  # type: ignore[attr-defined]
-        return cls(
+        return Trajectory(
             t=np.array(t, dtype=float),
             rotations=poses[:, :3, :3].copy(),
             positions=poses[:, :3, 3].copy(),

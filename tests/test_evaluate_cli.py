@@ -34,7 +34,9 @@ def perturbed(traj: Trajectory, shift: float, seed: int) -> Trajectory:
     return Trajectory(
         t=traj.t.copy(),
         rotations=traj.rotations.copy(),
-        positions=traj.positions + [shift, 0.0, 0.0] + rng.normal(0, 0.002, traj.positions.shape),
+        positions=traj.positions
+        + np.array([shift, 0.0, 0.0])
+        + rng.normal(0, 0.002, (len(traj), 3)),
         twists=traj.twists + rng.normal(0, 0.01, traj.twists.shape),
     )
 
@@ -274,7 +276,7 @@ def test_bad_input_exits_2_with_one_line(tmp_path, truth, capsys):
         ),
         (
             [est, "--groundtruth", str(gt), "--delta", "100", "--delta-unit", "m"],
-            f"--delta 100 m: no pose pair of the estimate ({len(truth)} associated poses) is that far",
+            f"--delta 100 m: no pose pair of the estimate ({len(truth)} associated poses)",
         ),
         (
             [est, "--groundtruth", str(tmp_path)],

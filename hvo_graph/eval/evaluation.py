@@ -19,7 +19,7 @@ Position and orientation errors of step 5 are the APE's ``trans_m`` and
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 
 import numpy as np
 
@@ -97,7 +97,7 @@ class Evaluation:
     series: ErrorSeries
     summary: ErrorSummary
     estimate_frames: int
-    options: EvaluationOptions = field(default_factory=EvaluationOptions)
+    options: EvaluationOptions
 
     def as_dict(self) -> dict[str, object]:
         """The contract's keys (position_m, ..., frames) plus method, ape, rpe, alignment,
