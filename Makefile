@@ -38,7 +38,7 @@ format: $(STAMP)
 figures: $(STAMP)
 	$(BIN)/python experiments/paper_figures.py --out docs/figures
 	$(BIN)/python experiments/factor_graph_figure.py --out docs/figures
-	$(BIN)/python experiments/compare.py
+	$(BIN)/python experiments/compare.py --out-dir docs
 	$(BIN)/python experiments/sweep.py
 	$(BIN)/python experiments/generalization.py
 	$(BIN)/python experiments/images.py

@@ -15,7 +15,8 @@ and ``compare_error_distribution`` (.png and .svg); prints the tables.
 
 Usage::
 
-    python experiments/compare.py                 # 50 seeds, paper noisy scenario -> docs/
+    python experiments/compare.py                 # 50 seeds, paper noisy scenario -> out/compare/
+    python experiments/compare.py --out-dir docs  # what `make figures` runs: the docs' tables
     python experiments/compare.py --seeds 20 --workers 2
     python experiments/compare.py --quick         # 5 seeds of 4 s -> out/compare-quick/
 """
@@ -56,9 +57,11 @@ from hvo_graph.report.tables import (
 from hvo_graph.sim.scenario import PAPER_NOISE_VAR, ScenarioConfig, paper_scenario
 
 DEFAULT_SEEDS = 50
-#: The repository (outputs default to its docs/ folder, wherever the script is run from).
+#: The repository (outputs go under it, wherever the script is run from).
 ROOT = Path(__file__).resolve().parents[1]
-DEFAULT_OUT_DIR = ROOT / "docs"
+#: Outputs default to out/compare/: the repository's docs/ is written only when asked
+#: (``--out-dir docs``, as ``make figures`` does).
+DEFAULT_OUT_DIR = ROOT / "out" / "compare"
 #: ``--quick``: what ``make demo`` runs (seconds, not minutes).
 QUICK_SEEDS = 5
 QUICK_DURATION = 4.0
@@ -161,6 +164,7 @@ def build_parser() -> argparse.ArgumentParser:
         parser,
         quick_help=f"short demo: {QUICK_SEEDS} seeds of {QUICK_DURATION:g} s unless given",
         quick_out="out/compare-quick/",
+        default_out="out/compare/; make figures passes --out-dir docs",
     )
     return parser
 

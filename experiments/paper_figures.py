@@ -326,7 +326,8 @@ def quantity_figure(result: RunResult, quantity: Quantity) -> Figure:
     notes = _draw_quantity(axes, result, quantity, show_measurements=True)
     number = FIGURE_NUMBERS[(quantity.key, result.run)]
     fig.suptitle(
-        f"Fig. {number} (paper): {quantity.title}, {RUN_TITLES[result.run]}",
+        f"Fig. {number} (paper): {quantity.title}, {RUN_TITLES[result.run]}"
+        f" (one run, seed {result.scenario.config.seed})",
         fontsize=13,
         fontweight="bold",
     )
@@ -377,7 +378,8 @@ def overview_figure(result: RunResult) -> Figure:
             )
         )
     fig.suptitle(
-        f"hvo_graph on the paper's {RUN_TITLES[result.run]}: smoother vs Kalman filter",
+        f"hvo_graph on the paper's {RUN_TITLES[result.run]}: smoother vs Kalman filter "
+        f"(one run, seed {result.scenario.config.seed}; means over seeds in docs/results.md)",
         fontsize=13,
         fontweight="bold",
     )

@@ -83,6 +83,7 @@ def add_monte_carlo_options(
     quick_out: str,
     workers: bool = True,
     figures_option: bool = True,
+    default_out: str = "the repository's docs/",
 ) -> None:
     """The options every Monte Carlo script under experiments/ takes.
 
@@ -104,7 +105,7 @@ def add_monte_carlo_options(
     parser.add_argument(
         "--out-dir",
         type=Path,
-        help=f"output folder (default: the repository's docs/; {quick_out} with --quick)",
+        help=f"output folder (default: {default_out}; {quick_out} with --quick)",
     )
     if figures_option:
         parser.add_argument("--no-figures", action="store_true", help="skip the figures")
