@@ -290,3 +290,58 @@ def test_bad_input_exits_2_with_one_line(tmp_path, truth, capsys):
         assert message in err, (message, err)
     assert main(["evaluate", est, "--groundtruth", str(gt), "--json", "--csv"]) == 2
     assert "--csv: not allowed with argument --json" in capsys.readouterr().err
+
+
+# ------------------------------------------------------------------ end to end
+
+
+def test_one_command_compares_the_methods_with_the_experiments_numbers(tmp_path, capsys):
+    """simulate -> estimate (three methods) -> one evaluate: one table, one set of figures,
+    and the numbers the experiments compute (error_series + summarize) for the same runs."""
+    from hvo_graph.eval.metrics import error_series, summarize
+    from hvo_graph.io.trajectory import read_estimate_dir
+
+    sim = tmp_path / "sim"
+    assert main(["simulate", "--out", str(sim), "--duration", "2", "--seed", "3"]) == 0
+    methods = ("smoother", "kalman", "measurements")
+    for m in methods:
+        assert (
+            main(
+                [
+                    "estimate",
+                    "--camera",
+                    str(sim / "camera.yaml"),
+                    "--tracks",
+                    str(sim / "tracks.csv"),
+                    "--method",
+                    m,
+                    "--out",
+                    str(tmp_path / m),
+                ]
+            )
+            == 0
+        )
+    code, out, _ = run_cli(
+        capsys,
+        *(str(tmp_path / m) for m in methods),
+        "--groundtruth",
+        str(sim),
+        "--skip",
+        "1",
+        "--json",
+        "--plot",
+        str(tmp_path / "figs"),
+    )
+    assert code == 0 and len(list((tmp_path / "figs").glob("*.png"))) == 3
+    result = json.loads(out)["estimates"]
+    assert [e["method"] for e in result] == list(methods)
+    truth = read_groundtruth_dir(sim)
+    for entry, m in zip(result, methods, strict=True):
+        expected = summarize(
+            error_series(read_estimate_dir(tmp_path / m), truth), t_start=truth.t[0] + 1.0
+        ).as_dict()
+        for key, value in expected.items():
+            if isinstance(value, dict):
+                assert entry[key] == pytest.approx(value, rel=1e-12, abs=1e-15), (m, key)
+            else:
+                assert entry[key] == value, (m, key)

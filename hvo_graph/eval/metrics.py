@@ -8,7 +8,9 @@ Per matched frame k (estimate ^, ground truth gt):
 - angular velocity    ||w^_k - w_gt,k||  (body frame)            (rad/s)
 
 Poses are compared directly in the world frame W = F* (both trajectories
-start from the same reference frame, so no alignment is applied). Summaries
+start from the same reference frame, so no alignment is applied); position and
+orientation errors are the translation and rotation-angle APE of
+:mod:`hvo_graph.eval.ape_rpe`, the code ``hvo-graph evaluate`` reports. Summaries
 give the RMSE sqrt(mean e_k^2) and the maximum over the frames kept.
 Velocity rows that are NaN (unknown velocity) are left out of the velocity
 statistics; a trajectory without twists gives no velocity statistics.
@@ -23,6 +25,7 @@ from typing import NamedTuple
 import numpy as np
 
 from hvo_graph.errors import InputError
+from hvo_graph.eval.ape_rpe import ape_errors
 from hvo_graph.types import Trajectory
 
 #: Fewer matched timestamps than this fraction of the estimate's frames is an error.
@@ -143,6 +146,14 @@ def match_timestamps(
     return np.flatnonzero(ok), j[ok]
 
 
+def _poses_at(trajectory: Trajectory, index: np.ndarray) -> Trajectory:
+    return Trajectory(
+        t=np.asarray(trajectory.t, dtype=float)[index],
+        rotations=np.asarray(trajectory.rotations)[index],
+        positions=np.asarray(trajectory.positions)[index],
+    )
+
+
 def error_series(
     estimate: Trajectory, groundtruth: Trajectory, *, tolerance: float = 1e-6
 ) -> ErrorSeries:
@@ -167,15 +178,13 @@ def error_series(
             f"truth within {tolerance:g} s (estimate {estimate.t[0]:.6g}..{estimate.t[-1]:.6g} s, "
             f"ground truth {groundtruth.t[0]:.6g}..{groundtruth.t[-1]:.6g} s)"
         )
-    R_est = np.asarray(estimate.rotations)[i_est]
-    R_gt = np.asarray(groundtruth.rotations)[i_gt]
-    dR = np.einsum("kji,kjl->kil", R_gt, R_est)
+    # The APE of hvo-graph evaluate (evo's translation part and rotation angle): one
+    # formula for the command, the experiments and the docs' tables.
+    ape = ape_errors(_poses_at(estimate, i_est), _poses_at(groundtruth, i_gt))
     series = ErrorSeries(
         t=np.asarray(groundtruth.t, dtype=float)[i_gt],
-        position=np.linalg.norm(
-            np.asarray(estimate.positions)[i_est] - np.asarray(groundtruth.positions)[i_gt], axis=1
-        ),
-        orientation=np.degrees(rotation_angle(dR)),
+        position=ape["trans_m"],
+        orientation=ape["rot_deg"],
     )
     if estimate.twists is not None and groundtruth.twists is not None:
         diff = np.asarray(estimate.twists)[i_est] - np.asarray(groundtruth.twists)[i_gt]

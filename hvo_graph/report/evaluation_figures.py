@@ -88,7 +88,9 @@ def error_distribution_figure(evaluations: Sequence[Evaluation]) -> Figure:
     fig, axes = new_figure(8.0, 4.0, nrows=1, ncols=2)
     labels = [ev.method for ev in evaluations]
     ev0 = evaluations[0]
-    unit = {"f": "frames", "s": "s", "m": "m"}[ev0.options.delta_unit]
+    unit = {"f": "frames" if ev0.options.delta != 1 else "frame", "s": "s", "m": "m"}[
+        ev0.options.delta_unit
+    ]
     for ax, key, title in (
         (axes[0, 0], "ape", "APE translation [m]"),
         (axes[0, 1], "rpe", f"RPE translation [m], delta {ev0.options.delta:g} {unit}"),
