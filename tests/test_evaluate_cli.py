@@ -345,3 +345,22 @@ def test_one_command_compares_the_methods_with_the_experiments_numbers(tmp_path,
                 assert entry[key] == pytest.approx(value, rel=1e-12, abs=1e-15), (m, key)
             else:
                 assert entry[key] == value, (m, key)
+
+
+def test_sim3_recovers_the_scale_of_positions_and_linear_velocities(truth):
+    from hvo_graph.eval.evaluation import EvaluationOptions, evaluate_trajectory
+
+    # A monocular-style estimate: the whole motion at half scale (positions and v), in
+    # its own world frame, rotated by 90 degrees about z.
+    Rz = np.array([[0.0, -1.0, 0.0], [1.0, 0.0, 0.0], [0.0, 0.0, 1.0]])
+    twists = truth.twists.copy()
+    twists[:, 3:] *= 0.5
+    est = Trajectory(
+        truth.t, np.einsum("ij,kjl->kil", Rz, truth.rotations), 0.5 * truth.positions @ Rz.T, twists
+    )
+    ev = evaluate_trajectory(est, truth, options=EvaluationOptions(align="sim3"))
+    assert ev.alignment.scale == pytest.approx(2.0, rel=1e-12)
+    assert ev.summary.position_max < 1e-12 and ev.summary.orientation_max < 1e-9
+    assert ev.summary.linear_velocity_max < 1e-12 and ev.summary.angular_velocity_max < 1e-12
+    se3 = evaluate_trajectory(est, truth, options=EvaluationOptions(align="se3"))
+    assert se3.summary.linear_velocity_max > 0.1 * np.abs(truth.twists[:, 3:]).max()
