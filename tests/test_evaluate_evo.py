@@ -9,6 +9,7 @@ evo's to 1e-9.
 from __future__ import annotations
 
 import json
+import sys
 
 import gtsam
 import numpy as np
@@ -206,3 +207,12 @@ def test_to_evo_and_back(files):
     np.testing.assert_array_equal(back.t, traj.t)
     np.testing.assert_array_equal(back.rotations, traj.rotations)
     np.testing.assert_array_equal(back.positions, traj.positions)
+
+
+def test_to_evo_without_evo_is_a_clear_error(monkeypatch):
+    from hvo_graph.errors import InputError
+
+    monkeypatch.setitem(sys.modules, "evo.core", None)  # as if evo were not installed
+    traj = Trajectory(np.zeros(1), np.eye(3)[None], np.zeros((1, 3)))
+    with pytest.raises(InputError, match=r"evo is not installed: pip install evo"):
+        traj.to_evo()
