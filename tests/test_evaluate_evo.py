@@ -9,6 +9,7 @@ evo's to 1e-9.
 from __future__ import annotations
 
 import json
+import os
 import sys
 
 import gtsam
@@ -216,3 +217,52 @@ def test_to_evo_without_evo_is_a_clear_error(monkeypatch):
     traj = Trajectory(np.zeros(1), np.eye(3)[None], np.zeros((1, 3)))
     with pytest.raises(InputError, match=r"evo is not installed: pip install evo"):
         traj.to_evo()
+
+
+@pytest.mark.parametrize(
+    ("command", "evo_flags", "our_flags", "kind", "key"),
+    [
+        ("evo_ape", ["-as"], ["--align", "sim3"], "ape", "trans_m"),
+        ("evo_ape", ["-r", "full", "--align_origin"], ["--align", "origin"], "ape", "full"),
+        (
+            "evo_rpe",
+            ["-a", "-r", "angle_deg", "--delta", "0.5", "--delta_unit", "m"],
+            ["--align", "se3", "--delta", "0.5", "--delta-unit", "m"],
+            "rpe",
+            "rot_deg",
+        ),
+    ],
+)
+def test_the_evo_commands_themselves_agree(
+    files, capsys, tmp_path, command, evo_flags, our_flags, kind, key
+):
+    import subprocess
+    import zipfile
+    from pathlib import Path
+
+    est, gt = files
+    exe = Path(sys.executable).parent / command
+    results = tmp_path / "results.zip"
+    env = {**os.environ, "HOME": str(tmp_path)}  # evo keeps its settings under ~/.evo
+    subprocess.run(
+        [
+            str(exe),
+            "tum",
+            str(gt),
+            str(est),
+            *evo_flags,
+            "--t_offset",
+            str(GT_OFFSET),
+            "--save_results",
+            str(results),
+            "--no_warnings",
+        ],
+        check=True,
+        capture_output=True,
+        env=env,
+        timeout=120,
+    )
+    with zipfile.ZipFile(results) as z:
+        theirs = json.loads(z.read("stats.json"))
+    ours = evaluate_json(capsys, est, gt, *our_flags, "--t-offset", str(GT_OFFSET))
+    assert_stats(ours[kind][key], theirs)
