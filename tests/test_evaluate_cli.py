@@ -364,3 +364,40 @@ def test_sim3_recovers_the_scale_of_positions_and_linear_velocities(truth):
     assert ev.summary.linear_velocity_max < 1e-12 and ev.summary.angular_velocity_max < 1e-12
     se3 = evaluate_trajectory(est, truth, options=EvaluationOptions(align="se3"))
     assert se3.summary.linear_velocity_max > 0.1 * np.abs(truth.twists[:, 3:]).max()
+
+
+def test_plot_without_matplotlib_is_a_clear_error(tmp_path, truth, capsys, monkeypatch):
+    import sys
+
+    write_tum(tmp_path / "gt.txt", truth)
+    monkeypatch.setitem(sys.modules, "matplotlib", None)  # as if the extra were missing
+    code, out, err = run_cli(
+        capsys,
+        str(tmp_path / "gt.txt"),
+        "--groundtruth",
+        str(tmp_path / "gt.txt"),
+        "--plot",
+        str(tmp_path / "figs"),
+    )
+    assert code == 2 and out == "" and not (tmp_path / "figs").exists()
+    assert err == "hvo-graph: error: --plot: needs matplotlib (pip install 'hvo_graph[figures]')\n"
+
+
+def test_simulate_estimate_evaluate_need_no_matplotlib(tmp_path):
+    import subprocess
+    import sys
+
+    code = (
+        "import sys; sys.modules['matplotlib'] = None\n"
+        "from hvo_graph.cli import main\n"
+        f"d = {str(tmp_path)!r}\n"
+        "assert main(['simulate', '--out', d + '/sim', '--duration', '1']) == 0\n"
+        "assert main(['estimate', '--camera', d + '/sim/camera.yaml', '--tracks',"
+        " d + '/sim/tracks.csv', '--method', 'kalman', '--out', d + '/k']) == 0\n"
+        "assert main(['evaluate', d + '/k', '--groundtruth', d + '/sim', '--csv']) == 0\n"
+    )
+    result = subprocess.run(
+        [sys.executable, "-c", code], capture_output=True, text=True, timeout=120, check=False
+    )
+    assert result.returncode == 0, result.stderr
+    assert result.stdout.splitlines()[-1].startswith("kalman,31,")

@@ -114,6 +114,13 @@ def run(args: argparse.Namespace) -> int:
     from hvo_graph.eval.metrics import format_table
     from hvo_graph.io.trajectory_paths import read_estimate, read_groundtruth
 
+    if args.plot is not None:
+        try:  # before any work: a missing extra is a usage error, not a late traceback
+            import matplotlib  # noqa: F401
+        except ImportError:
+            raise InputError(
+                "--plot: needs matplotlib (pip install 'hvo_graph[figures]')"
+            ) from None
     paths = [*args.estimates, *args.estimate]
     if not paths:
         raise InputError("evaluate: expected at least one estimate (EST or --estimate PATH)")
