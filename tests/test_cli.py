@@ -199,7 +199,7 @@ def test_bad_inputs_exit_2_with_one_line(tmp_path):
     empty_images.mkdir()
     assert_one_line_error(
         run("estimate", "--camera", camera, "--images", str(empty_images), "--out", "x"),
-        f"{empty_images}: no images in the directory",
+        f"{empty_images}: no images and no known layout in the folder (expected an image folder",
     )
     assert_one_line_error(
         run("estimate", "--camera", camera, "--tracks", tracks, "--fps", "30", "--out", "x"),

@@ -232,8 +232,10 @@ def save_scene(path: PathLike, scene: SceneConfig) -> None:
         f"  width: {int(cam.width)}",
         f"  height: {int(cam.height)}",
         *(
-            [f"  distortion: {seq(cam.distortion)}  # fisheye k1 k2 k3 k4",
-             "  distortion_model: equidistant"]
+            [
+                f"  distortion: {seq(cam.distortion)}  # fisheye k1 k2 k3 k4",
+                "  distortion_model: equidistant",
+            ]
             if cam.is_fisheye
             else [f"  distortion: {seq(cam.distortion)}  # OpenCV order k1 k2 p1 p2 k3"]
         ),
