@@ -7,9 +7,9 @@ seconds) or a frame rate given by the caller (never a guessed one); a video
 gives each frame's own container timestamp unless a frame rate is passed.
 Dataset layouts (TUM RGB-D, EuRoC, ROS bags) are in
 :mod:`hvo_graph.io.datasets` and :mod:`hvo_graph.io.rosbag`, and
-:func:`hvo_graph.io.sequences.open_recording` picks the reader. :func:`as_gray_image` is the one conversion of an image array (gray,
-BGR or BGRA, 8 or 16 bits) into what the tracker reads
-(:mod:`hvo_graph.frontend.tracking`).
+:func:`hvo_graph.io.sequences.open_recording` picks the reader.
+:func:`as_gray_image` is the one conversion of an image array (gray, BGR or
+BGRA, 8 or 16 bits) into what the tracker reads (:mod:`hvo_graph.frontend.tracking`).
 """
 
 from __future__ import annotations
