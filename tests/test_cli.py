@@ -180,7 +180,8 @@ def test_bad_inputs_exit_2_with_one_line(tmp_path):
     )
     assert_one_line_error(
         run("estimate", "--camera", tracks, "--tracks", tracks, "--out", str(tmp_path / "o")),
-        f"{tracks}:1: expected a YAML file of a mapping of keys to values",
+        f"{tracks}: not a camera calibration this program reads (expected the hvo-graph "
+        "camera/scene YAML, an OpenCV FileStorage YAML/XML",
     )
     bad_tracks = tmp_path / "bad.csv"
     lines = (sim / "tracks.csv").read_text().splitlines()
