@@ -11,8 +11,9 @@ it, opening a bag is a one-line error naming the extra.
   left it unset) takes the time the bag recorded the message.
 - **Camera**: the first ``sensor_msgs/CameraInfo`` (K, D, distortion_model
   plumb_bob / rational_polynomial / equidistant, width, height) of the image
-  topic's namespace (``/cam/image_raw`` -> ``/cam/camera_info``), or of the
-  bag's only camera_info topic; none when absent or uncalibrated (K = 0).
+  topic's namespace, nearest first (``/cam/image_raw/compressed`` ->
+  ``/cam/image_raw/camera_info``, ``/cam/camera_info``, ``/camera_info``);
+  none when absent or uncalibrated (K = 0).
 
 A ROS 1 bag is a ``.bag`` file; a ROS 2 bag a folder with ``metadata.yaml``
 (or one of its ``.db3`` / ``.mcap`` files).
@@ -108,9 +109,8 @@ def _camera_info(path: Path, msg: Any, topic: str) -> CameraModel | None:
     if dist.size == 0:
         dist = np.zeros(4 if model == "equidistant" else 5)
     try:
-        return CameraModel(
-            K[0, 0], K[1, 1], K[0, 2], K[1, 2], int(msg.width), int(msg.height), dist, model
-        )
+        fx, fy, cx, cy = (float(x) for x in (K[0, 0], K[1, 1], K[0, 2], K[1, 2]))
+        return CameraModel(fx, fy, cx, cy, int(msg.width), int(msg.height), dist, model)
     except InputError as exc:
         raise InputError(f"{path}: {topic}: {exc}") from None
 
@@ -186,12 +186,15 @@ def _image_topic(path: Path, connections: list[Any], topic: str | None) -> str:
 
 
 def _info_connection(connections: list[Any], topic: str) -> Any | None:
-    infos = [c for c in connections if c.msgtype == CAMERA_INFO_TYPE]
-    namespace = topic.rsplit("/", 1)[0]
-    same = [c for c in infos if c.topic == f"{namespace}/camera_info"]
-    if same:
-        return same[0]
-    return infos[0] if len({c.topic for c in infos}) == 1 else None
+    """The CameraInfo of the image topic's namespace, nearest first: /cam/image_raw/compressed
+    -> /cam/image_raw/camera_info, /cam/camera_info, /camera_info."""
+    infos = {c.topic: c for c in connections if c.msgtype == CAMERA_INFO_TYPE}
+    parts = topic.strip("/").split("/")
+    for n in range(len(parts) - 1, -1, -1):
+        name = "/" + "/".join([*parts[:n], "camera_info"])
+        if name in infos:
+            return infos[name]
+    return None
 
 
 def read_rosbag(

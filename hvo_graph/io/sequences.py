@@ -121,10 +121,10 @@ def open_recording(
         as_number(fps, "fps", above=0.0, what="a number")
     layout = detect_layout(path)
     if topic is not None and layout != "rosbag":
-        raise InputError(f"topic: only for ROS bags; {path} is a {_NAMES[layout]}")
+        raise InputError(f"topic: only for ROS bags; {path} is {_NAMES[layout]}")
     if fps is not None and layout in ("tum", "euroc", "rosbag"):
         raise InputError(
-            f"fps: {path} is a {_NAMES[layout]}, which gives its own timestamps; leave fps unset"
+            f"fps: {path} is {_NAMES[layout]}, which gives its own timestamps; leave fps unset"
         )
     own_camera = None
     if layout == "rosbag":
@@ -140,9 +140,9 @@ def open_recording(
 
 
 _NAMES = {
-    "folder": "image folder",
-    "video": "video",
-    "tum": "TUM RGB-D sequence",
-    "euroc": "EuRoC/ASL sequence",
-    "rosbag": "ROS bag",
+    "folder": "an image folder",
+    "video": "a video",
+    "tum": "a TUM RGB-D sequence",
+    "euroc": "a EuRoC/ASL sequence",
+    "rosbag": "a ROS bag",
 }
