@@ -111,6 +111,13 @@ def test_ros_bags_header_stamps_images_and_camera_info(data, frames, bag):
     assert_same_pixels(recording, frames)
 
 
+def test_a_dataset_image_folder_opens_the_dataset_with_its_times(data):
+    tum = open_recording(data["tum"] / "rgb")
+    assert (tum.layout, tum.times) == ("tum", [float(s) for s in tum_stamps()])
+    euroc = open_recording(data["euroc"] / "mav0" / "cam0" / "data")
+    assert (euroc.layout, euroc.times) == ("euroc", SECONDS)
+
+
 def test_a_ros2_bag_opens_from_its_storage_file(data):
     (db,) = [p for p in data["ros2"].iterdir() if p.suffix in (".db3", ".mcap")]
     assert open_recording(db).times == SECONDS
@@ -277,3 +284,22 @@ def test_layouts_are_detected_from_the_path(data):
         "euroc",
         "rosbag",
     ]
+
+
+def test_a_config_file_can_give_the_frame_rate_and_run_json_names_the_layout(tmp_path, frames):
+    import json
+
+    import cv2
+
+    folder = tmp_path / "seq"
+    folder.mkdir()
+    for k, image in enumerate(frames[:4]):
+        assert cv2.imwrite(str(folder / f"{k}.png"), image)
+    config = tmp_path / "run.yaml"
+    config.write_text("fps: 25\n")
+    out = tmp_path / "out"
+    args = ["estimate", *camera_args(tmp_path), "--images", str(folder), "--config", str(config)]
+    assert main([*args, "--method", "measurements", "--out", str(out)]) == 0
+    assert list(read_tum(out / "trajectory.txt").t) == [k / 25.0 for k in range(4)]
+    inputs = json.loads((out / "run.json").read_text())["inputs"]
+    assert (inputs["images"], inputs["layout"]) == (str(folder), "folder")

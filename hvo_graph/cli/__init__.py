@@ -38,9 +38,7 @@ def build_parser() -> argparse.ArgumentParser:
         prog=PROG,
         description="Homography-based visual odometry fused in a GTSAM factor graph.",
     )
-    parser.add_argument(
-        "--version", action="version", version=f"{PROG} {package_version()}"
-    )
+    parser.add_argument("--version", action="version", version=f"{PROG} {package_version()}")
     sub = parser.add_subparsers(dest="command", metavar="COMMAND", required=True)
     for command in SUBCOMMANDS:
         command.add_parser(sub)

@@ -207,6 +207,9 @@ def run(args: argparse.Namespace) -> int:
     from hvo_graph.pipeline import FRONT_END_OPTIONS, run_estimate
     from hvo_graph.report.tables import software_versions
 
+    if args.config is not None:  # first: it may set input options such as fps
+        _apply_config(args, args.config)
+    recording = None
     if args.images is not None:
         recording = open_recording(args.images, fps=args.fps, topic=args.topic)
         scene = scene_from_arguments(args, recording)
@@ -219,8 +222,6 @@ def run(args: argparse.Namespace) -> int:
                 raise InputError(f"--{flag.replace('_', '-')}: only for --images input")
         scene = scene_from_arguments(args, None)
         observations = read_tracks(args.tracks)
-    if args.config is not None:
-        _apply_config(args, args.config)
     options = _estimate_options(args)
     check_applicable(
         args.method,
@@ -238,7 +239,14 @@ def run(args: argparse.Namespace) -> int:
         **run.summary(),
         "inputs": {
             **({"camera": str(args.camera)} if args.camera else {}),
-            **({"images": str(args.images)} if args.images else {"tracks": str(args.tracks)}),
+            **(
+                {"images": str(args.images), "layout": recording.layout}
+                if recording is not None
+                else {"tracks": str(args.tracks)}
+            ),
+            **({"topic": args.topic} if args.topic else {}),
+            **({"plane_distance": args.plane_distance} if args.plane_distance else {}),
+            **({"plane_normal": args.plane_normal} if args.plane_normal else {}),
             **({"config": str(args.config)} if args.config else {}),
         },
         "wall_time_s": round(seconds, 3),

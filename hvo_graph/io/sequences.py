@@ -26,7 +26,13 @@ from pathlib import Path
 
 from hvo_graph.errors import InputError, as_number
 from hvo_graph.geometry.camera import CameraModel
-from hvo_graph.io.datasets import TUM_LIST, euroc_camera_folder, read_euroc, read_tum_rgb
+from hvo_graph.io.datasets import (
+    EUROC_DATA,
+    TUM_LIST,
+    euroc_camera_folder,
+    read_euroc,
+    read_tum_rgb,
+)
 from hvo_graph.io.images import (
     IMAGE_EXTENSIONS,
     TIMES_FILE,
@@ -96,6 +102,18 @@ def detect_layout(path: str | Path) -> str:
     raise InputError(f"{path}: not a layout this program reads (expected {LAYOUTS_UNDERSTOOD})")
 
 
+def _dataset_of_image_folder(path: Path) -> Path:
+    """A dataset's own image folder stands for the dataset, whose list has the times: TUM's
+    ``rgb/`` (beside rgb.txt) and EuRoC's ``cam0/data/`` (beside data.csv)."""
+    if not path.is_dir() or (path / TIMES_FILE).exists():
+        return path
+    if (path.parent / TUM_LIST).is_file():
+        return path.parent
+    if path.name == EUROC_DATA and euroc_camera_folder(path.parent) is not None:
+        return path.parent
+    return path
+
+
 def open_recording(
     path: str | Path,
     *,
@@ -104,6 +122,9 @@ def open_recording(
     camera: CameraModel | None = None,
 ) -> Recording:
     """Open an image sequence in any of :data:`LAYOUTS`, chosen from what ``path`` holds.
+
+    A dataset's own image folder (TUM's ``rgb/``, EuRoC's ``cam0/data/``)
+    opens the dataset, so that its listed times are used.
 
     Args:
         path: the file or folder (see the module's table).
@@ -116,7 +137,7 @@ def open_recording(
     Returns:
         The :class:`Recording`.
     """
-    path = Path(path)
+    path = _dataset_of_image_folder(Path(path))
     if fps is not None:
         as_number(fps, "fps", above=0.0, what="a number")
     layout = detect_layout(path)
