@@ -303,3 +303,14 @@ def test_a_config_file_can_give_the_frame_rate_and_run_json_names_the_layout(tmp
     assert list(read_tum(out / "trajectory.txt").t) == [k / 25.0 for k in range(4)]
     inputs = json.loads((out / "run.json").read_text())["inputs"]
     assert (inputs["images"], inputs["layout"]) == (str(folder), "folder")
+
+
+def test_a_broken_video_and_a_bag_without_images(tmp_path, frames):
+    broken = tmp_path / "broken.mp4"
+    broken.write_bytes(b"not a video at all" * 10)
+    assert error(broken) == f"{broken}: cannot open as a video"
+    bag = write_bag(tmp_path / "info.bag", frames[:1], ros1=True, compressed=True, topics=())
+    assert error(bag) == (
+        f"{bag}: no sensor_msgs/Image or CompressedImage topic in the bag "
+        "(topics: /cam0/camera_info)"
+    )
