@@ -298,3 +298,16 @@ def test_plane_flags_where_they_do_not_apply_or_are_missing(tmp_path, capsys):
     )
     message = error("--camera", str(sensor), "--tracks", str(tracks), "--plane-normal", "1,0")
     assert message.endswith("argument --plane-normal: expected three numbers NX,NY,NZ, got '1,0'")
+
+
+def test_a_bad_distortion_model_in_the_scene_yaml_names_its_line(tmp_path):
+    path = tmp_path / "c.yaml"
+    path.write_text(
+        "camera:\n  fx: 1\n  fy: 1\n  cx: 0\n  cy: 0\n  width: 4\n  height: 4\n"
+        "  distortion_model: fisheye\nplane:\n  distance: 1\n"
+    )
+    with pytest.raises(InputError) as info:
+        load_scene(path)
+    assert str(info.value) == (
+        f"{path}:8: camera.distortion_model: expected one of radtan, equidistant, got 'fisheye'"
+    )
