@@ -180,7 +180,8 @@ def test_bad_inputs_exit_2_with_one_line(tmp_path):
     )
     assert_one_line_error(
         run("estimate", "--camera", tracks, "--tracks", tracks, "--out", str(tmp_path / "o")),
-        f"{tracks}:1: expected a YAML file of a mapping of keys to values",
+        f"{tracks}: not a camera calibration this program reads (expected the hvo-graph "
+        "camera/scene YAML, an OpenCV FileStorage YAML/XML",
     )
     bad_tracks = tmp_path / "bad.csv"
     lines = (sim / "tracks.csv").read_text().splitlines()
@@ -199,7 +200,7 @@ def test_bad_inputs_exit_2_with_one_line(tmp_path):
     empty_images.mkdir()
     assert_one_line_error(
         run("estimate", "--camera", camera, "--images", str(empty_images), "--out", "x"),
-        f"{empty_images}: no images in the directory",
+        f"{empty_images}: no images and no known layout in the folder (expected an image folder",
     )
     assert_one_line_error(
         run("estimate", "--camera", camera, "--tracks", tracks, "--fps", "30", "--out", "x"),

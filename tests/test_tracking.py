@@ -334,7 +334,14 @@ def test_file_names_sort_by_number_and_fps_sets_the_times(tmp_path, images):
     assert times == pytest.approx([k / 10.0 for k in range(11)])
     assert [Path(name).name for name in frames.names] == [f"frame_{k}.PNG" for k in range(11)]
     assert all(np.array_equal(a, b) for a, b in zip(frames, images[:11], strict=True))
-    assert load_image_sequence(tmp_path)[1][1] == pytest.approx(1 / 30.0)
+    # No times.txt and no frame rate: an error, never a guessed rate.
+    message = (
+        f"{tmp_path}: no times.txt in the folder to give the images' timestamps; pass the "
+        "frame rate (--fps) or write times.txt (one time in seconds per image)"
+    )
+    with pytest.raises(InputError) as info:
+        load_image_sequence(tmp_path)
+    assert str(info.value) == message
 
 
 def test_a_video_file_is_read_frame_by_frame(tmp_path, images):
@@ -344,7 +351,8 @@ def test_a_video_file_is_read_frame_by_frame(tmp_path, images):
         writer.write(image)
     writer.release()
     frames, times = load_image_sequence(path, camera=CAMERA)
-    assert len(frames) == 12 and times == pytest.approx([k / 25.0 for k in range(12)])
+    # The container's per-frame timestamps (CAP_PROP_POS_MSEC): 40 ms apart at 25 fps.
+    assert len(frames) == 12 and times == pytest.approx([k / 25.0 for k in range(12)], abs=1e-9)
     decoded = list(frames)
     assert all(f.shape == (240, 320) and f.dtype == np.uint8 for f in decoded)
     assert np.abs(decoded[5].astype(float) - images[5]).mean() < 3.0  # JPEG-compressed frame 5
@@ -367,10 +375,10 @@ def test_unreadable_images_are_named(tmp_path, images):
     write_images(tmp_path, images[:3])
     (tmp_path / "frame_0001.png").write_bytes(b"definitely not a png")
     with pytest.raises(InputError, match=r"frame_0001\.png: cannot read the image"):
-        tracks_from_images(tmp_path, CAMERA)
+        tracks_from_images(tmp_path, CAMERA, fps=10.0)
     (tmp_path / "frame_0000.png").write_bytes(b"")
     with pytest.raises(InputError, match=r"frame_0000\.png: cannot read the image"):
-        load_image_sequence(tmp_path)
+        load_image_sequence(tmp_path, fps=10.0)
 
 
 @pytest.mark.parametrize(
@@ -399,10 +407,10 @@ def test_times_file_and_fps_together_are_refused(tmp_path, images):
 def test_image_sizes_must_agree_with_each_other_and_the_camera(tmp_path, images):
     write_images(tmp_path / "mixed", [images[0], images[1][:200, :300]])
     with pytest.raises(InputError, match=r"frame_0001\.png: image size 300x200 differs from"):
-        tracks_from_images(tmp_path / "mixed", CAMERA)
+        tracks_from_images(tmp_path / "mixed", CAMERA, fps=10.0)
     write_images(tmp_path / "small", [im[:200, :300] for im in images[:2]])
     with pytest.raises(InputError, match="image size 300x200 does not match the camera's 320x240"):
-        tracks_from_images(tmp_path / "small", CAMERA)
+        tracks_from_images(tmp_path / "small", CAMERA, fps=10.0)
     with pytest.raises(InputError, match=r"images\[1\]: image size 300x200 does not match"):
         track_images([images[0], images[1][:200, :300]], TIMES[:2], CAMERA)
 

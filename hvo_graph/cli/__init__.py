@@ -22,7 +22,7 @@ import sys
 from collections.abc import Sequence
 
 from hvo_graph.cli import estimate, evaluate, simulate
-from hvo_graph.cli._common import PROG
+from hvo_graph.cli._common import PROG, package_version
 from hvo_graph.cli.estimate import IMAGE_RANSAC_PX, KALMAN_R, METHODS, ROBUST
 from hvo_graph.errors import InputError
 
@@ -38,6 +38,7 @@ def build_parser() -> argparse.ArgumentParser:
         prog=PROG,
         description="Homography-based visual odometry fused in a GTSAM factor graph.",
     )
+    parser.add_argument("--version", action="version", version=f"{PROG} {package_version()}")
     sub = parser.add_subparsers(dest="command", metavar="COMMAND", required=True)
     for command in SUBCOMMANDS:
         command.add_parser(sub)

@@ -4,10 +4,10 @@ from __future__ import annotations
 
 import argparse
 import time
-from typing import TYPE_CHECKING
 
 from hvo_graph.arguments import acceleration_sigma_value, finite_float, int_at_least
 from hvo_graph.cli._common import PROG, package_version, progress
+from hvo_graph.cli._inputs import normal_argument, scene_from_arguments, track_recording
 from hvo_graph.errors import InputError
 from hvo_graph.estimators.registry import (
     COMMAND_METHODS,
@@ -16,10 +16,6 @@ from hvo_graph.estimators.registry import (
     VELOCITY_FACTOR_POLICIES,
     check_applicable,
 )
-
-if TYPE_CHECKING:  # the heavy modules are imported when the command runs
-    from hvo_graph.geometry.camera import CameraModel
-    from hvo_graph.types import FrameObservations
 
 #: ``--method`` choices, from the method registry (the first is the default).
 METHODS: tuple[str, ...] = COMMAND_METHODS
@@ -40,13 +36,22 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
         "--covariance, DIR/covariance.csv.",
     )
     est.set_defaults(options_parser=est)  # --config values are parsed by these actions
-    est.add_argument("--camera", required=True, metavar="FILE", help="camera/scene YAML")
+    est.add_argument(
+        "--camera",
+        metavar="FILE",
+        default=None,
+        help="camera/scene YAML, or a calibration file (OpenCV FileStorage YAML/XML, ROS "
+        "camera_info, Kalibr camchain, EuRoC sensor.yaml) with --plane-distance; may be left "
+        "out when --images holds a calibration (EuRoC sensor.yaml, a bag's CameraInfo)",
+    )
     source = est.add_mutually_exclusive_group(required=True)
     source.add_argument("--tracks", metavar="FILE", help="feature tracks CSV (frame,t,id,u,v)")
     source.add_argument(
         "--images",
         metavar="PATH",
-        help="image folder (sorted by name; PATH/times.txt or --fps gives the times) or video",
+        help="recorded images, layout recognised from PATH: image folder (PATH/times.txt or "
+        "--fps gives the times), video file, TUM RGB-D (folder with rgb.txt, or rgb.txt), "
+        "EuRoC/ASL (root, mav0/ or cam0/), ROS 1 .bag or ROS 2 bag folder",
     )
     est.add_argument("--method", choices=METHODS, default=METHODS[0], help="default: smoother")
     est.add_argument("--out", required=True, metavar="DIR", help="output folder (created)")
@@ -155,13 +160,35 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
         default=None,
         help="YAML mapping of these options (names without --); the command line wins",
     )
+    plane = est.add_argument_group(
+        "plane (when --camera is a calibration file without one, or is left out)"
+    )
+    plane.add_argument(
+        "--plane-distance",
+        type=finite_float(0.0, strict=True),
+        default=None,
+        metavar="D",
+        help="d*: metres from the first frame's optical centre to the plane",
+    )
+    plane.add_argument(
+        "--plane-normal",
+        type=normal_argument,
+        default=None,
+        metavar="NX,NY,NZ",
+        help="n*: unit normal in the first camera frame, away from the camera "
+        "(default: estimated from the images)",
+    )
     images = est.add_argument_group("image input (--images)")
     images.add_argument(
         "--fps",
         type=finite_float(0.0, strict=True),
         default=None,
         metavar="F",
-        help="frame rate of an image folder without times.txt (default 30) or of a video",
+        help="frame rate of an image folder without times.txt (required there), or replacing "
+        "a video's own timestamps",
+    )
+    images.add_argument(
+        "--topic", default=None, metavar="TOPIC", help="image topic of a bag with several"
     )
     images.add_argument(
         "--max-features", type=int_at_least(4), default=None, metavar="N", help="default 200"
@@ -174,24 +201,27 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    from hvo_graph.io.config import load_scene
+    from hvo_graph.io.sequences import open_recording
     from hvo_graph.io.tracks import read_tracks, write_tracks
     from hvo_graph.io.trajectory import write_estimate_dir, write_run_record
     from hvo_graph.pipeline import FRONT_END_OPTIONS, run_estimate
     from hvo_graph.report.tables import software_versions
 
-    scene = load_scene(args.camera)
+    if args.config is not None:  # first: it may set input options such as fps
+        _apply_config(args, args.config)
+    recording = None
     if args.images is not None:
-        observations = _track_images(args, scene.camera)
+        recording = open_recording(args.images, fps=args.fps, topic=args.topic)
+        scene = scene_from_arguments(args, recording)
+        observations = track_recording(args, scene, recording)
         if args.save_tracks:
             write_tracks(args.save_tracks, observations)
     else:
-        for flag in ("fps", "max_features", "save_tracks"):
+        for flag in ("fps", "topic", "max_features", "save_tracks"):
             if getattr(args, flag) is not None:
                 raise InputError(f"--{flag.replace('_', '-')}: only for --images input")
+        scene = scene_from_arguments(args, None)
         observations = read_tracks(args.tracks)
-    if args.config is not None:
-        _apply_config(args, args.config)
     options = _estimate_options(args)
     check_applicable(
         args.method,
@@ -208,8 +238,15 @@ def run(args: argparse.Namespace) -> int:
         "command": "estimate",
         **run.summary(),
         "inputs": {
-            "camera": str(args.camera),
-            **({"images": str(args.images)} if args.images else {"tracks": str(args.tracks)}),
+            **({"camera": str(args.camera)} if args.camera else {}),
+            **(
+                {"images": str(args.images), "layout": recording.layout}
+                if recording is not None
+                else {"tracks": str(args.tracks)}
+            ),
+            **({"topic": args.topic} if args.topic else {}),
+            **({"plane_distance": args.plane_distance} if args.plane_distance else {}),
+            **({"plane_normal": args.plane_normal} if args.plane_normal else {}),
             **({"config": str(args.config)} if args.config else {}),
         },
         "wall_time_s": round(seconds, 3),
@@ -322,17 +359,3 @@ def _config_value(path: str, key: str, action: argparse.Action, value: object) -
         choices = ", ".join(map(str, action.choices))
         raise InputError(f"{path}: {key}: expected one of {choices}, got {value!r}")
     return parsed
-
-
-def _track_images(args: argparse.Namespace, camera: CameraModel) -> list[FrameObservations]:
-    from hvo_graph.frontend.tracking import TrackerConfig, tracks_from_images
-
-    config = (
-        TrackerConfig()
-        if args.max_features is None
-        else TrackerConfig(
-            max_features=args.max_features, min_tracked=min(args.max_features // 2, 100)
-        )
-    )
-    progress(f"tracking features in {args.images}")
-    return tracks_from_images(args.images, camera, fps=args.fps, config=config)

@@ -1,7 +1,7 @@
 """Image front end: image sequences -> feature tracks (the contract's tracks form).
 
-Images come from arrays or from disk (:mod:`hvo_graph.io.images` reads image
-folders and videos).
+Images come from arrays or from disk (:func:`hvo_graph.io.sequences.open_recording`
+reads image folders, videos, TUM RGB-D, EuRoC and ROS bags).
 
 The paper's future work (NOTES section 7) is running on real images with fast
 feature detection and tracking. This module does that with OpenCV's KLT
@@ -53,7 +53,8 @@ import numpy as np
 
 from hvo_graph.errors import InputError, as_integer, as_number
 from hvo_graph.geometry.camera import CameraModel
-from hvo_graph.io.images import as_gray_image, load_image_sequence
+from hvo_graph.io.images import as_gray_image
+from hvo_graph.io.sequences import open_recording
 from hvo_graph.types import FrameObservations
 
 #: Fewest tracks of one first-sight frame to fit their own re-alignment homography.
@@ -396,22 +397,28 @@ def track_images(
 
 def tracks_from_images(
     path: str | Path,
-    camera: CameraModel,
+    camera: CameraModel | None,
     *,
     fps: float | None = None,
     config: TrackerConfig | None = None,
+    topic: str | None = None,
 ) -> list[FrameObservations]:
-    """Feature tracks of a directory of images or a video: :func:`load_image_sequence`
-    then :func:`track_images`.
+    """Feature tracks of a recorded sequence: :func:`~hvo_graph.io.sequences.open_recording`
+    (image folder, video, TUM RGB-D, EuRoC, ROS bag) then :func:`track_images`.
 
     Args:
-        path: directory of images (optional times.txt) or video file.
-        camera: the calibrated camera; images must be its size.
-        fps: frame rate when there is no times.txt (directory default 30;
-            video default: the file's).
+        path: what ``open_recording`` reads.
+        camera: the calibrated camera (images must be its size); None takes the
+            camera stored with the data (EuRoC sensor.yaml, a bag's CameraInfo).
+        fps: frame rate of an image folder without times.txt (required there),
+            or replacing a video's container timestamps.
         config: tracker settings.
+        topic: the image topic of a bag with several.
     Returns:
         One :class:`FrameObservations` per image, raw pixels.
     """
-    frames, times = load_image_sequence(path, fps=fps, camera=camera)
-    return track_images(frames, times, camera, config)
+    recording = open_recording(path, fps=fps, topic=topic, camera=camera)
+    camera = camera if camera is not None else recording.camera
+    if camera is None:
+        raise InputError(f"camera: {path} carries no calibration; pass the camera")
+    return track_images(recording.frames, recording.times, camera, config)

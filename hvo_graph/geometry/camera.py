@@ -1,8 +1,12 @@
-"""Pinhole camera with optional OpenCV lens distortion.
+"""Pinhole camera with optional OpenCV lens distortion: radial-tangential or equidistant.
 
 Normalized image coordinates are m = [x/z, y/z, 1]^T (the paper's m), i.e.
 pixels mapped through K^-1 after undistortion. Distortion goes through
-OpenCV (``cv2.undistortPoints`` / ``cv2.projectPoints``), never by hand.
+OpenCV, never by hand: ``cv2.undistortPoints`` / ``cv2.projectPoints`` for
+the radial-tangential model ("radtan", OpenCV's standard model, ROS's
+plumb_bob), ``cv2.fisheye.undistortPoints`` / ``cv2.fisheye.distortPoints``
+for the equidistant (fisheye) model ("equidistant", OpenCV's ``cv2.fisheye``,
+Kalibr's equidistant).
 """
 
 from __future__ import annotations
@@ -18,6 +22,9 @@ from hvo_graph.errors import InputError, as_number, as_points
 #: errors of ~1e-5 (normalized; ~0.01 px) under strong distortion; iterate to convergence.
 _UNDISTORT_CRITERIA = (cv2.TERM_CRITERIA_COUNT | cv2.TERM_CRITERIA_EPS, 100, 1e-14)
 
+#: Lens distortion models: OpenCV's standard (radial-tangential) and cv2.fisheye (equidistant).
+DISTORTION_MODELS = ("radtan", "equidistant")
+
 
 @dataclass(frozen=True)
 class CameraModel:
@@ -28,7 +35,10 @@ class CameraModel:
         cx, cy: principal point in pixels (OpenCV convention: the centre of the
             top-left pixel is (0, 0)).
         width, height: image size in pixels.
-        distortion: (5,) k1 k2 p1 p2 k3 (OpenCV order), zeros for none.
+        distortion: "radtan": (4|5|8|12|14,) k1 k2 p1 p2 [k3 ...] (OpenCV
+            order), zeros for none; "equidistant": (4,) k1 k2 k3 k4 of
+            theta_d = theta (1 + k1 theta^2 + k2 theta^4 + k3 theta^6 + k4 theta^8).
+        distortion_model: "radtan" (default) or "equidistant" (fisheye).
     """
 
     fx: float
@@ -38,6 +48,7 @@ class CameraModel:
     width: int
     height: int
     distortion: np.ndarray = field(default_factory=lambda: np.zeros(5))
+    distortion_model: str = "radtan"
 
     def __post_init__(self) -> None:
         for name in ("fx", "fy"):
@@ -48,8 +59,19 @@ class CameraModel:
             value = getattr(self, name)
             if int(value) != value or value <= 0:
                 raise InputError(f"camera.{name}: expected a positive integer, got {value}")
+        if self.distortion_model not in DISTORTION_MODELS:
+            raise InputError(
+                "camera.distortion_model: expected one of "
+                f"{', '.join(DISTORTION_MODELS)}, got {self.distortion_model!r}"
+            )
         dist = np.asarray(self.distortion, dtype=float).ravel()
-        if dist.size not in (4, 5, 8, 12, 14) or not np.all(np.isfinite(dist)):
+        if self.distortion_model == "equidistant":
+            if dist.size != 4 or not np.all(np.isfinite(dist)):
+                raise InputError(
+                    "camera.distortion: expected 4 finite equidistant (fisheye) coefficients "
+                    f"k1 k2 k3 k4, got {dist.size}"
+                )
+        elif dist.size not in (4, 5, 8, 12, 14) or not np.all(np.isfinite(dist)):
             raise InputError(
                 "camera.distortion: expected 4, 5, 8, 12 or 14 finite OpenCV coefficients "
                 f"(k1 k2 p1 p2 [k3 ...]), got {dist.size}"
@@ -63,7 +85,14 @@ class CameraModel:
 
     @property
     def has_distortion(self) -> bool:
-        return bool(np.any(self.distortion != 0.0))
+        """Whether pixels differ from the pinhole projection (always, for equidistant: its
+        theta_d = theta even with zero coefficients is not the pinhole's tan(theta))."""
+        return self.is_fisheye or bool(np.any(self.distortion != 0.0))
+
+    @property
+    def is_fisheye(self) -> bool:
+        """Whether the lens follows the equidistant (cv2.fisheye) model."""
+        return self.distortion_model == "equidistant"
 
     @property
     def mean_focal(self) -> float:
@@ -79,7 +108,11 @@ class CameraModel:
             (N, 3) normalized homogeneous coordinates m = [x, y, 1].
         """
         uv = as_points(uv, "uv", dim=2)
-        if self.has_distortion:
+        if self.is_fisheye:
+            xy = cv2.fisheye.undistortPoints(
+                uv.reshape(-1, 1, 2), self.K, self.distortion, None, None, None, _UNDISTORT_CRITERIA
+            ).reshape(-1, 2)
+        elif self.has_distortion:
             xy = cv2.undistortPoints(
                 uv.reshape(-1, 1, 2), self.K, self.distortion, None, None, None, _UNDISTORT_CRITERIA
             ).reshape(-1, 2)
@@ -99,6 +132,9 @@ class CameraModel:
         if m.shape[1] == 3 and not np.all(m[:, 2] > 0):
             raise InputError("m: third column must be > 0 (points in front of the camera)")
         xy = m[:, :2] / m[:, 2:3] if m.shape[1] == 3 else m
+        if self.is_fisheye:
+            uv = cv2.fisheye.distortPoints(xy.reshape(-1, 1, 2), self.K, self.distortion)
+            return uv.reshape(-1, 2)
         if self.has_distortion:
             pts = np.column_stack((xy, np.ones(len(xy))))
             uv, _ = cv2.projectPoints(pts, np.zeros(3), np.zeros(3), self.K, self.distortion)

@@ -4,7 +4,10 @@
 - :mod:`~hvo_graph.io.tracks`: feature tracks, ``frame,t,id,u,v``;
 - :mod:`~hvo_graph.io.trajectory`: TUM poses, ``velocity.csv``, ``covariance.csv``
   and the estimate / ground-truth folders;
-- :mod:`~hvo_graph.io.images`: image folders (with ``times.txt``) and videos.
+- :mod:`~hvo_graph.io.images`: image folders (with ``times.txt``) and videos;
+- :mod:`~hvo_graph.io.sequences`: any recorded layout (folder, video, TUM RGB-D,
+  EuRoC, ROS bag: :mod:`~hvo_graph.io.datasets`, :mod:`~hvo_graph.io.rosbag`);
+- :mod:`~hvo_graph.io.calibration`: calibration files of other tools.
 
 The readers and writers are re-exported here and imported on first use.
 """
@@ -34,5 +37,7 @@ __all__, __getattr__, __dir__ = _lazy_exports(
             "read_times",
             "load_image_sequence",
         ),
+        "hvo_graph.io.sequences": ("Recording", "open_recording"),
+        "hvo_graph.io.calibration": ("Calibration", "load_calibration"),
     },
 )

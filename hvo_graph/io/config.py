@@ -10,6 +10,7 @@
       width: 640         # pixels
       height: 480
       distortion: [0.0, 0.0, 0.0, 0.0, 0.0]   # optional; OpenCV order k1 k2 p1 p2 k3
+      distortion_model: radtan  # optional: radtan (default) or equidistant (fisheye, k1..k4)
     plane:
       distance: 2.0      # d* > 0, metres
       normal: [0.0, 0.0, 1.0]   # optional n*, unit normal in the first camera frame
@@ -37,7 +38,7 @@ from hvo_graph.types import Plane
 
 _CAMERA_KEYS = ("fx", "fy", "cx", "cy", "width", "height")
 _SECTIONS = {
-    "camera": (_CAMERA_KEYS, ("distortion",)),
+    "camera": (_CAMERA_KEYS, ("distortion", "distortion_model")),
     "plane": (("distance",), ("normal",)),
     "noise": ((), ("pixel_sigma",)),
 }
@@ -175,11 +176,14 @@ def load_scene(path: PathLike) -> SceneConfig:
     cam = sections["camera"]
     values = {k: r.number(cam[k][1], f"camera.{k}") for k in ("fx", "fy", "cx", "cy")}
     sizes = {k: r.integer(cam[k][1], f"camera.{k}") for k in ("width", "height")}
-    distortion = np.zeros(5)
+    model = "radtan"
+    if "distortion_model" in cam:
+        model = r._constructor.construct_object(cam["distortion_model"][1], deep=True)
+    distortion = np.zeros(4 if model == "equidistant" else 5)
     if "distortion" in cam:
         distortion = np.array(r.numbers(cam["distortion"][1], "camera.distortion"))
     try:
-        camera = CameraModel(**values, **sizes, distortion=distortion)
+        camera = CameraModel(**values, **sizes, distortion=distortion, distortion_model=model)
     except InputError as exc:  # CameraModel names the key: "camera.<key>: ..."
         key = str(exc).split(":")[0].removeprefix("camera.")
         raise r.error(cam[key][1] if key in cam else top["camera"][0], str(exc)) from None
@@ -227,7 +231,14 @@ def save_scene(path: PathLike, scene: SceneConfig) -> None:
         *(f"  {k}: {fmt(getattr(cam, k))}" for k in ("fx", "fy", "cx", "cy")),
         f"  width: {int(cam.width)}",
         f"  height: {int(cam.height)}",
-        f"  distortion: {seq(cam.distortion)}  # OpenCV order k1 k2 p1 p2 k3",
+        *(
+            [
+                f"  distortion: {seq(cam.distortion)}  # fisheye k1 k2 k3 k4",
+                "  distortion_model: equidistant",
+            ]
+            if cam.is_fisheye
+            else [f"  distortion: {seq(cam.distortion)}  # OpenCV order k1 k2 p1 p2 k3"]
+        ),
         "plane:",
         f"  distance: {fmt(plane.distance)}  # d*, metres",
     ]

@@ -3,10 +3,13 @@
 Frames are read lazily and converted to gray uint8 (:class:`ImageSequence`);
 a folder is sorted by file name with digit runs compared by value (frame2
 before frame10), its timestamps come from ``times.txt`` (one time per image,
-seconds) or a frame rate; a video gives its own frame rate unless one is
-passed. :func:`as_gray_image` is the one conversion of an image array (gray,
-BGR or BGRA, 8 or 16 bits) into what the tracker reads
-(:mod:`hvo_graph.frontend.tracking`).
+seconds) or a frame rate given by the caller (never a guessed one); a video
+gives each frame's own container timestamp unless a frame rate is passed.
+Dataset layouts (TUM RGB-D, EuRoC, ROS bags) are in
+:mod:`hvo_graph.io.datasets` and :mod:`hvo_graph.io.rosbag`, and
+:func:`hvo_graph.io.sequences.open_recording` picks the reader.
+:func:`as_gray_image` is the one conversion of an image array (gray, BGR or
+BGRA, 8 or 16 bits) into what the tracker reads (:mod:`hvo_graph.frontend.tracking`).
 """
 
 from __future__ import annotations
@@ -23,10 +26,13 @@ from hvo_graph.geometry.camera import CameraModel
 
 #: File name endings read as images (case-insensitive).
 IMAGE_EXTENSIONS = (".png", ".jpg", ".jpeg", ".bmp", ".tif", ".tiff")
+#: File name endings read as videos (case-insensitive); FFmpeg opens some text files too.
+VIDEO_EXTENSIONS = (
+    ".mp4", ".m4v", ".mov", ".avi", ".mkv", ".webm", ".mpg", ".mpeg", ".ts", ".mts",
+    ".m2ts", ".wmv", ".flv", ".ogv", ".3gp", ".mjpeg", ".mjpg", ".y4m", ".h264", ".h265",
+)  # fmt: skip
 #: Optional timestamp file inside an image directory: one time (seconds) per image.
 TIMES_FILE = "times.txt"
-#: Frame rate assumed for an image directory without times.txt.
-DEFAULT_FPS = 30.0
 
 
 def as_gray_image(image: object, name: str, camera: CameraModel | None = None) -> np.ndarray:
@@ -180,6 +186,29 @@ def read_times(path: str | Path, count: int) -> list[float]:
     return times
 
 
+def image_files(path: Path) -> list[Path]:
+    """The image files of a directory (:data:`IMAGE_EXTENSIONS`, any case), in name order
+    with digit runs compared by value (frame2 before frame10)."""
+    return sorted(
+        (f for f in path.iterdir() if f.suffix.lower() in IMAGE_EXTENSIONS and f.is_file()),
+        key=_natural_key,
+    )
+
+
+def images_from_files(files: list[Path]) -> ImageSequence:
+    """Frames read lazily from a list of image files (the first one is read now)."""
+    return _DirectoryImages(files)
+
+
+def check_camera_size(frames: ImageSequence, camera: CameraModel | None) -> None:
+    """Raise InputError naming the first frame when its size is not the camera's."""
+    if camera is not None and (frames.width, frames.height) != (camera.width, camera.height):
+        raise InputError(
+            f"{frames.names[0]}: image size {frames.width}x{frames.height} does not match the "
+            f"camera's {camera.width}x{camera.height} (camera.width x camera.height)"
+        )
+
+
 def load_image_sequence(
     path: str | Path, *, fps: float | None = None, camera: CameraModel | None = None
 ) -> tuple[ImageSequence, list[float]]:
@@ -189,10 +218,13 @@ def load_image_sequence(
     (any case), sorted by file name with digit runs compared by value
     (frame2 before frame10; zero-padded names sort as usual). Timestamps come
     from ``PATH/times.txt`` when present (see :func:`read_times`; ``fps``
-    must then be None), else t_k = k / fps with fps defaulting to 30.
+    must then be None), else t_k = k / fps; without times.txt ``fps`` is
+    required (a guessed rate would scale every velocity).
 
-    A video file (anything ``cv2.VideoCapture`` decodes): t_k = k / fps, fps
-    from the argument when given, else from the file.
+    A video file (a name ending in one of :data:`VIDEO_EXTENSIONS`, decoded
+    by ``cv2.VideoCapture``): each frame's container timestamp
+    (``CAP_PROP_POS_MSEC``, so variable frame rates are kept), or
+    t_k = k / fps when ``fps`` is given.
 
     Args:
         path: the directory or video file.
@@ -207,10 +239,7 @@ def load_image_sequence(
     if not path.exists():
         raise InputError(f"{path}: no such directory or video file")
     if path.is_dir():
-        files = sorted(
-            (f for f in path.iterdir() if f.suffix.lower() in IMAGE_EXTENSIONS and f.is_file()),
-            key=_natural_key,
-        )
+        files = image_files(path)
         if not files:
             raise InputError(
                 f"{path}: no images in the directory (expected files ending in "
@@ -222,39 +251,47 @@ def load_image_sequence(
             if fps is not None:
                 raise InputError(f"fps: {times_file} already gives the timestamps; leave fps unset")
             times = read_times(times_file, len(files))
+        elif fps is None:
+            raise InputError(
+                f"{path}: no {TIMES_FILE} in the folder to give the images' timestamps; pass the "
+                f"frame rate (--fps) or write {TIMES_FILE} (one time in seconds per image)"
+            )
         else:
-            rate = DEFAULT_FPS if fps is None else fps
-            times = [k / rate for k in range(len(files))]
+            times = [k / fps for k in range(len(files))]
     elif path.suffix.lower() in IMAGE_EXTENSIONS:
         raise InputError(f"{path}: a single image; expected a directory of images or a video file")
+    elif path.suffix.lower() in VIDEO_EXTENSIONS:
+        frames, stamps = _open_video(path)
+        times = stamps if fps is None else [k / fps for k in range(len(frames))]
     else:
-        frames, rate = _open_video(path, fps)
-        times = [k / rate for k in range(len(frames))]
-    if camera is not None and (frames.width, frames.height) != (camera.width, camera.height):
         raise InputError(
-            f"{frames.names[0]}: image size {frames.width}x{frames.height} does not match the "
-            f"camera's {camera.width}x{camera.height} (camera.width x camera.height)"
+            f"{path}: not a video file (expected a name ending in {', '.join(VIDEO_EXTENSIONS)}) "
+            "nor a directory of images"
         )
+    check_camera_size(frames, camera)
     return frames, times
 
 
-def _open_video(path: Path, fps: float | None) -> tuple[ImageSequence, float]:
+def _open_video(path: Path) -> tuple[ImageSequence, list[float]]:
+    """The frames of a video and their container timestamps, seconds."""
     capture = cv2.VideoCapture(str(path))
     try:
         if not capture.isOpened():
-            raise InputError(f"{path}: cannot open as a video (nor is it a directory of images)")
-        if fps is None:
-            fps = float(capture.get(cv2.CAP_PROP_FPS))
-            if not (np.isfinite(fps) and fps > 0):
-                raise InputError(f"{path}: the video does not state its frame rate; pass fps")
+            raise InputError(f"{path}: cannot open as a video")
         # Count by decoding: CAP_PROP_FRAME_COUNT is an estimate for many containers.
         ok, frame = capture.read()
         if not ok:
             raise InputError(f"{path}: the video has no readable frame")
         height, width = frame.shape[:2]
-        count = 1
+        stamps = [capture.get(cv2.CAP_PROP_POS_MSEC) / 1000.0]
         while capture.grab():
-            count += 1
+            stamps.append(capture.get(cv2.CAP_PROP_POS_MSEC) / 1000.0)
     finally:
         capture.release()
-    return _VideoFrames(path, count, width, height), float(fps)
+    for k in range(1, len(stamps)):
+        if not (np.isfinite(stamps[k]) and stamps[k] > stamps[k - 1]):
+            raise InputError(
+                f"{path} frame {k}: the container's timestamp {stamps[k]} s does not increase "
+                f"(previous {stamps[k - 1]} s); pass the frame rate (--fps)"
+            )
+    return _VideoFrames(path, len(stamps), width, height), stamps

@@ -30,6 +30,8 @@ class ProgressBar:
         width: characters of the bar.
         enabled: False writes nothing.
         clock: seconds, monotonic (injectable for tests).
+        rate_unit: when given, the line also shows the rate, e.g. "12.5 frames/s"
+            for "frames".
     """
 
     def __init__(
@@ -41,6 +43,7 @@ class ProgressBar:
         width: int = 30,
         enabled: bool = True,
         clock: Callable[[], float] = time.monotonic,
+        rate_unit: str | None = None,
     ) -> None:
         self.total = as_integer(total, "total", 1)
         self.label = label
@@ -48,6 +51,7 @@ class ProgressBar:
         self.width = width
         self.enabled = enabled
         self.clock = clock
+        self.rate_unit = rate_unit
         self.done = 0
         self._start = clock()
         self._tty = bool(getattr(self.stream, "isatty", lambda: False)())
@@ -57,17 +61,22 @@ class ProgressBar:
             self._draw()
 
     def text(self) -> str:
-        """The bar as a line: ``label [#####.....] done/total  pct%  elapsed m:ss  ETA m:ss``."""
+        """The bar as a line: ``label [#####.....] done/total  pct%  elapsed m:ss  ETA m:ss``,
+        then ``  R unit/s`` when ``rate_unit`` is set."""
         fraction = self.done / self.total
         filled = round(fraction * self.width)
         elapsed = self.clock() - self._start
         eta = "?" if self.done == 0 else _clock_text(elapsed * (self.total - self.done) / self.done)
         bar = "#" * filled + "." * (self.width - filled)
         head = f"{self.label} " if self.label else ""
-        return (
+        line = (
             f"{head}[{bar}] {self.done}/{self.total} {100 * fraction:3.0f}%  "
             f"elapsed {_clock_text(elapsed)}  ETA {eta}"
         )
+        if self.rate_unit is not None:
+            rate = f"{self.done / elapsed:.1f}" if elapsed > 0 and self.done else "?"
+            line += f"  {rate} {self.rate_unit}/s"
+        return line
 
     def _draw(self) -> None:
         if self._tty:

@@ -285,7 +285,9 @@ def _pixel_rays(camera: CameraModel) -> np.ndarray:
     """(3, H*W) normalized rays m = [x, y, 1] of every pixel centre, undistorted."""
     v, u = np.mgrid[0 : camera.height, 0 : camera.width]
     uv = np.column_stack((u.ravel(), v.ravel())).astype(float)
-    if camera.has_distortion:
+    if camera.is_fisheye:
+        xy = camera.pixel_to_normalized(uv)[:, :2]
+    elif camera.has_distortion:
         criteria = (cv2.TERM_CRITERIA_COUNT | cv2.TERM_CRITERIA_EPS, 50, 1e-12)
         xy = cv2.undistortPoints(
             uv.reshape(-1, 1, 2), camera.K, camera.distortion, criteria=criteria
