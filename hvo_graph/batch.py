@@ -153,7 +153,7 @@ def _estimate_into(
     from hvo_graph.eval.metrics import error_series, summarize
     from hvo_graph.io.config import load_scene
     from hvo_graph.io.tracks import read_tracks
-    from hvo_graph.io.trajectory import read_groundtruth_dir
+    from hvo_graph.io.trajectory import read_estimate_dir, read_groundtruth_dir
 
     scene = load_scene(job.directory / CAMERA_FILE)
     if job.images:
@@ -168,7 +168,9 @@ def _estimate_into(
     if job.groundtruth:
         truth = read_groundtruth_dir(job.directory)
         t_start = None if skip is None else float(truth.t[0]) + skip
-        evaluation = summarize(error_series(run.trajectory, truth), t_start=t_start).as_dict()
+        # The files as written, as ``hvo-graph evaluate`` would read them.
+        written = read_estimate_dir(stage)
+        evaluation = summarize(error_series(written, truth), t_start=t_start).as_dict()
         text = json.dumps(evaluation, indent=2, sort_keys=True) + "\n"
         (stage / EVALUATION_FILE).write_text(text, encoding="utf-8")
     record = {
