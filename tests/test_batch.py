@@ -8,6 +8,7 @@ from __future__ import annotations
 import json
 from pathlib import Path
 
+import distributed  # the [cluster] extra, in [test] too
 import pytest
 
 from hvo_graph.batch import find_sequences, run_batch, run_sequence
@@ -18,8 +19,6 @@ from hvo_graph.io.trajectory import read_estimate_dir, read_groundtruth_dir
 from hvo_graph.montecarlo import FamilySeed, run_seeds
 from hvo_graph.parallel import check_scheduler
 from hvo_graph.sim.scenario import paper_scenario, simulate, write_scenario
-
-distributed = pytest.importorskip("distributed")  # the [cluster] extra; in [test] too
 
 DATA_FILES = ("trajectory.txt", "velocity.csv", "covariance.csv", "evaluation.json", "run.json")
 
@@ -172,3 +171,16 @@ def test_batch_options_are_checked_like_estimate(sequences, tmp_path, capsys):
     assert main([*argv, "--method", "fixed-lag", "--config", str(config)]) == 0
     record = json.loads((tmp_path / "o" / "alpha" / "run.json").read_text())
     assert record["options"]["lag"] == 0.5 and record["options"]["robust"] == "huber"
+
+
+def test_without_dask_the_scheduler_option_says_what_to_install(monkeypatch):
+    import sys
+
+    from hvo_graph.parallel import executor
+
+    monkeypatch.setitem(sys.modules, "distributed", None)  # import fails as if not installed
+    with pytest.raises(
+        InputError, match=r'needs dask.distributed: pip install "hvo_graph\[cluster\]"'
+    ):
+        with executor(1, "tcp://127.0.0.1:8786"):
+            pass
