@@ -73,6 +73,10 @@ def collinear_segment() -> Scenario:
     return with_frames(s, change)
 
 
+def unknown_normal(s: Scenario) -> Scenario:
+    return dataclasses.replace(s, plane=Plane(s.plane.distance, None))
+
+
 CASES = {
     # name: (scenario builder, frames expected without a pose measurement)
     "three points for 1 s": (
@@ -84,11 +88,22 @@ CASES = {
         lambda: with_frames(scenario(), lambda o: empty(o) if o.index in GAP else o),
         30,
     ),
+    "no pose in frames 1..9 (two points)": (
+        lambda: with_frames(scenario(), lambda o: only(o, [0, 1]) if 1 <= o.index < 10 else o),
+        9,
+    ),
     "static camera (H_d = I)": (
         lambda: scenario(linear_amplitude=(0, 0, 0), angular_amplitude=(0, 0, 0)),
         0,
     ),
     "pure rotation": (lambda: scenario(linear_amplitude=(0, 0, 0)), 0),
+    # n* left to be estimated, but no parallax ever: the decomposition stays ambiguous,
+    # and pixel noise alone may pass for parallax (how many poses is not asserted: the
+    # covariance must still cover the error)
+    "plane normal unknown, camera static": (
+        lambda: unknown_normal(scenario(linear_amplitude=(0, 0, 0), angular_amplitude=(0, 0, 0))),
+        None,
+    ),
     "plane seen 50 deg from edge-on": (
         lambda: scenario(
             plane=Plane(2.0, np.array([0.0, -1.2, 1.0])),
@@ -115,7 +130,7 @@ def case(request: pytest.FixtureRequest) -> tuple[str, Scenario, int]:
     return request.param, build(), missing
 
 
-@pytest.mark.parametrize("method", ["smoother", "fixed-lag", "kalman"])
+@pytest.mark.parametrize("method", ["smoother", "kalman"])  # fixed-lag: the gap test below
 def test_degenerate_frames_are_skipped_and_the_covariance_covers_the_error(case, method):
     name, s, missing = case
     run = run_estimate(s.observations, s, method=method, covariance=True)
@@ -123,7 +138,8 @@ def test_degenerate_frames_are_skipped_and_the_covariance_covers_the_error(case,
     assert len(trajectory) == len(s.observations)
     assert np.isfinite(trajectory.positions).all() and np.isfinite(trajectory.covariances).all()
     counts = run.summary()["counts"]
-    assert counts["frames"] - counts["frames_with_pose"] == missing, name
+    if missing is not None:
+        assert counts["frames"] - counts["frames_with_pose"] == missing, name
     pose_nees, _ = trajectory_nees(trajectory, s.groundtruth, t_start=0.5)
     # The paper's filter starts from a random state with its own R: its pose NEES is
     # judged with more room; the smoothers' marginals must cover their errors.
@@ -136,7 +152,8 @@ def test_degenerate_frames_are_skipped_and_the_covariance_covers_the_error(case,
 def test_measurements_method_skips_the_same_frames(case):
     name, s, missing = case
     run = run_estimate(s.observations, s, method="measurements")
-    assert run.summary()["counts"]["frames_with_pose"] == len(s.observations) - missing, name
+    poses = run.summary()["counts"]["frames_with_pose"]
+    assert missing is None or poses == len(s.observations) - missing, name
 
 
 def test_collinear_detects_lines_within_the_noise_only():
