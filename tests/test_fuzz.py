@@ -98,8 +98,7 @@ def only_documented(call: Callable[[], object]) -> None:
         assert "\n" not in str(exc), f"a multi-line message: {exc!r}"
 
 
-def written(data: str | bytes, name: str, folder: Path | None = None) -> Path:
-    folder = folder or Path(tempfile.mkdtemp(prefix="fuzz-"))
+def written(data: str | bytes, name: str, folder: Path) -> Path:
     path = folder / name
     path.write_bytes(data.encode("utf-8", "surrogatepass") if isinstance(data, str) else data)
     return path
@@ -108,9 +107,10 @@ def written(data: str | bytes, name: str, folder: Path | None = None) -> Path:
 def _covariance_text() -> str:
     from hvo_graph.io.trajectory import write_covariance
 
-    path = Path(tempfile.mkdtemp(prefix="fuzz-")) / "covariance.csv"
-    write_covariance(path, np.array([0.0, 0.5]), np.stack([np.eye(12), 2 * np.eye(12)]))
-    return path.read_text()
+    with tempfile.TemporaryDirectory() as folder:
+        path = Path(folder) / "covariance.csv"
+        write_covariance(path, np.array([0.0, 0.5]), np.stack([np.eye(12), 2 * np.eye(12)]))
+        return path.read_text()
 
 
 COVARIANCE = _covariance_text()
@@ -125,9 +125,9 @@ READERS: dict[str, tuple[str, Callable[[Path], object]]] = {
 }
 
 
-def test_the_valid_files_read() -> None:
+def test_the_valid_files_read(tmp_path: Path) -> None:
     for name, (text, reader) in READERS.items():
-        reader(written(text, name))
+        reader(written(text, name, tmp_path))
 
 
 @FUZZ
@@ -135,29 +135,32 @@ def test_the_valid_files_read() -> None:
 def test_readers_raise_only_input_errors(name: str, data: st.DataObject) -> None:
     valid, reader = READERS[name]
     text = data.draw(mutations(valid) | st.binary(max_size=100).map(bytes), label="content")
-    only_documented(lambda: reader(written(text, name)))
+    with tempfile.TemporaryDirectory() as folder:
+        only_documented(lambda: reader(written(text, name, Path(folder))))
 
 
 @FUZZ
 @given(mutations(TUM), mutations(VELOCITY))
 def test_estimate_folders_raise_only_input_errors(tum: str, velocity: str) -> None:
-    folder = Path(tempfile.mkdtemp(prefix="fuzz-"))
-    written(tum, "trajectory.txt", folder)
-    written(velocity, "velocity.csv", folder)
-    only_documented(lambda: read_estimate_dir(folder))
+    with tempfile.TemporaryDirectory() as name:
+        folder = Path(name)
+        written(tum, "trajectory.txt", folder)
+        written(velocity, "velocity.csv", folder)
+        only_documented(lambda: read_estimate_dir(folder))
 
 
 @settings(FUZZ, max_examples=40)
 @given(mutations(CAMERA), mutations(TRACKS), st.sampled_from(["measurements", "smoother"]))
 def test_the_command_line_exits_0_or_2_on_any_camera_and_tracks(camera, tracks, method) -> None:
-    folder = Path(tempfile.mkdtemp(prefix="fuzz-"))
-    argv = ["estimate", "--camera", str(written(camera, "camera.yaml", folder))]
-    argv += ["--tracks", str(written(tracks, "tracks.csv", folder))]
-    out = folder / "out"
-    status = main([*argv, "--method", method, "--out", str(out)])
-    assert status in (0, 2)
-    if status == 2:  # nothing half-written
-        assert not out.exists() or os.listdir(out) == []
+    with tempfile.TemporaryDirectory() as name:
+        folder = Path(name)
+        argv = ["estimate", "--camera", str(written(camera, "camera.yaml", folder))]
+        argv += ["--tracks", str(written(tracks, "tracks.csv", folder))]
+        out = folder / "out"
+        status = main([*argv, "--method", method, "--out", str(out)])
+        assert status in (0, 2)
+        if status == 2:  # nothing half-written
+            assert not out.exists() or os.listdir(out) == []
 
 
 # -- geometry --------------------------------------------------------------------------------
