@@ -446,6 +446,7 @@ def main(argv: Sequence[str] | None = None) -> int:
             skip=args.skip,
             keep_series=not args.no_figures,
             workers=args.workers,
+            scheduler=args.scheduler,
             progress=not args.no_progress,
         )
     except InputError as exc:

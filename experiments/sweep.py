@@ -300,6 +300,7 @@ def main(argv: Sequence[str] | None = None) -> int:
             skip=args.skip,
             keep_series=False,
             workers=args.workers,
+            scheduler=args.scheduler,
             progress=not args.no_progress,
             label="sweep runs",
         )

@@ -87,8 +87,8 @@ def add_monte_carlo_options(
 ) -> None:
     """The options every Monte Carlo script under experiments/ takes.
 
-    --skip, --out-dir, --no-progress and --quick; --workers and --no-figures
-    unless the script has no use for them (``workers``, ``figures_option``).
+    --skip, --out-dir, --no-progress and --quick; --workers, --scheduler and
+    --no-figures unless the script has no use for them (``workers``, ``figures_option``).
     """
     parser.add_argument(
         "--skip",
@@ -101,6 +101,11 @@ def add_monte_carlo_options(
             "--workers",
             type=int_at_least(1),
             help="worker processes (default: os.cpu_count())",
+        )
+        parser.add_argument(
+            "--scheduler",
+            metavar="tcp://HOST:PORT",
+            help="run the seeds on the workers of this Dask scheduler (docs/batch.md)",
         )
     parser.add_argument(
         "--out-dir",

@@ -16,16 +16,13 @@ Then errors against the ground truth per seed, and their aggregation over seeds.
 
 from __future__ import annotations
 
-import multiprocessing
-import os
-from collections.abc import Callable, Iterator, Mapping, Sequence
-from concurrent.futures import FIRST_COMPLETED, ProcessPoolExecutor, wait
-from contextlib import contextmanager
+from collections.abc import Callable, Sequence
+from concurrent.futures import FIRST_COMPLETED, wait
 from dataclasses import dataclass, field
 
 import numpy as np
 
-from hvo_graph.errors import InputError, as_integer, as_number
+from hvo_graph.errors import InputError, as_number
 from hvo_graph.estimators.base import Estimator
 from hvo_graph.estimators.registry import (
     METHOD_LABELS,
@@ -37,6 +34,12 @@ from hvo_graph.estimators.registry import (
 from hvo_graph.eval.consistency import trajectory_nees
 from hvo_graph.eval.metrics import QUANTITIES, ErrorSeries, ErrorSummary, error_series, summarize
 from hvo_graph.eval.stats import MeanCI, mean_ci
+from hvo_graph.parallel import (  # WORKER_ENVIRONMENT: also read from here, its old home
+    WORKER_ENVIRONMENT,  # noqa: F401
+    check_scheduler,
+    executor,
+    resolve_workers,
+)
 from hvo_graph.pipeline import measure
 from hvo_graph.report.progress import ProgressBar
 from hvo_graph.sim.families import draw
@@ -45,16 +48,6 @@ from hvo_graph.types import FrameMeasurement, Trajectory
 
 #: Window of the fixed-lag smoother in the experiments, seconds.
 FIXED_LAG_SECONDS = 1.0
-
-#: Environment of the worker processes of :func:`run_seeds`: one BLAS / OpenMP thread
-#: each. The parallelism is across processes; threaded BLAS in every worker
-#: oversubscribes the cores, and the front end's small SVDs then ran ~10x slower on a
-#: loaded 2-core machine.
-WORKER_ENVIRONMENT: dict[str, str] = {
-    "OPENBLAS_NUM_THREADS": "1",
-    "OMP_NUM_THREADS": "1",
-    "MKL_NUM_THREADS": "1",
-}
 
 _NAMES = tuple(q.name for q in QUANTITIES)
 
@@ -254,28 +247,6 @@ def _cost(config: ScenarioConfig | FamilySeed) -> float:
     return config.num_frames * config.num_points if isinstance(config, ScenarioConfig) else 0.0
 
 
-def resolve_workers(workers: int | None) -> int:
-    """Worker processes: ``workers`` (>= 1), or ``os.cpu_count()`` when None."""
-    if workers is None:
-        return max(1, os.cpu_count() or 1)
-    return as_integer(workers, "workers", 1)
-
-
-@contextmanager
-def _environment(values: Mapping[str, str]) -> Iterator[None]:
-    """Set environment variables for the duration of the block (restored after)."""
-    saved = {name: os.environ.get(name) for name in values}
-    os.environ.update(values)
-    try:
-        yield
-    finally:
-        for name, value in saved.items():
-            if value is None:
-                os.environ.pop(name, None)
-            else:
-                os.environ[name] = value
-
-
 def run_seeds(
     configs: Sequence[ScenarioConfig | FamilySeed],
     methods: Sequence[str] = METHOD_LABELS,
@@ -285,8 +256,11 @@ def run_seeds(
     workers: int | None = None,
     progress: bool = True,
     label: str = "seeds",
+    scheduler: str | None = None,
 ) -> list[SeedResult]:
-    """:func:`run_seed` for every config, over ``workers`` processes; results in input order.
+    """:func:`run_seed` for every config, over ``workers`` processes or a Dask cluster;
+    results in input order, and the same numbers wherever they ran (each run is a
+    deterministic function of its config).
 
     Args:
         configs: one scenario per run (typically the same scenario, different seeds),
@@ -294,13 +268,19 @@ def run_seeds(
         methods: names from :data:`~hvo_graph.estimators.registry.METHOD_LABELS`.
         skip: seconds left out at the start of every summary.
         keep_series: keep the per-frame errors.
-        workers: processes (``concurrent.futures.ProcessPoolExecutor``, started with
-            "spawn" and :data:`WORKER_ENVIRONMENT`); 1 runs in this process; None =
-            ``os.cpu_count()``.
+        workers: local processes (``concurrent.futures.ProcessPoolExecutor``, started
+            with "spawn" and :data:`~hvo_graph.parallel.WORKER_ENVIRONMENT`); 1 runs in
+            this process; None = ``os.cpu_count()``. Not with ``scheduler``.
         progress: draw a :class:`ProgressBar` on stderr.
         label: what the progress bar counts.
+        scheduler: address of a running Dask scheduler (``tcp://HOST:PORT``): the seeds
+            run on its workers (:func:`hvo_graph.parallel.executor`).
+    Raises:
+        InputError: bad arguments, or no scheduler at ``scheduler``; a seed's failure
+            (naming the seed and method) stops the run.
     """
     methods = check_methods(methods)
+    scheduler = check_scheduler(scheduler, workers)
     workers = resolve_workers(workers)
     configs = list(configs)
     if not configs:
@@ -308,7 +288,7 @@ def run_seeds(
     jobs = [(config, methods, skip, keep_series) for config in configs]
     results: list[SeedResult | None] = [None] * len(jobs)
     with ProgressBar(len(jobs), label=label, enabled=progress) as bar:
-        if workers == 1 or len(jobs) == 1:
+        if scheduler is None and (workers == 1 or len(jobs) == 1):
             for i, job in enumerate(jobs):
                 results[i] = _run_seed_job(job)
                 bar.update()
@@ -316,15 +296,7 @@ def run_seeds(
             # Longest runs first (front-end cost ~ frames x points), so that no
             # worker is left with a long run at the end; results keep the input order.
             order = sorted(range(len(jobs)), key=lambda i: -_cost(configs[i]))
-            # Fresh interpreters ("spawn") read WORKER_ENVIRONMENT before importing numpy;
-            # forked workers would inherit this process's BLAS threads.
-            with (
-                _environment(WORKER_ENVIRONMENT),
-                ProcessPoolExecutor(
-                    max_workers=min(workers, len(jobs)),
-                    mp_context=multiprocessing.get_context("spawn"),
-                ) as pool,
-            ):
+            with executor(min(workers, len(jobs)), scheduler) as pool:
                 pending = {pool.submit(_run_seed_job, jobs[i]): i for i in order}
                 while pending:
                     finished, _ = wait(pending, return_when=FIRST_COMPLETED)

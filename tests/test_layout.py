@@ -93,7 +93,13 @@ FLOORS: tuple[tuple[str, ...], ...] = (
     ("hvo_graph.frontend", "hvo_graph.sim"),
     ("hvo_graph.estimators", "hvo_graph.eval"),
     ("hvo_graph.report",),
-    ("hvo_graph.montecarlo", "hvo_graph.image_runs", "hvo_graph.pipeline"),
+    (
+        "hvo_graph.montecarlo",
+        "hvo_graph.image_runs",
+        "hvo_graph.pipeline",
+        "hvo_graph.parallel",
+        "hvo_graph.batch",
+    ),
     ("hvo_graph.arguments", "hvo_graph.cli", "hvo_graph.__main__"),
 )
 

@@ -201,9 +201,10 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
+    from hvo_graph.io._common import staged_output
     from hvo_graph.io.sequences import open_recording
     from hvo_graph.io.tracks import read_tracks, write_tracks
-    from hvo_graph.io.trajectory import write_estimate_dir, write_run_record
+    from hvo_graph.io.trajectory import ESTIMATE_FILES, write_estimate_dir, write_run_record
     from hvo_graph.pipeline import FRONT_END_OPTIONS, run_estimate
     from hvo_graph.report.tables import software_versions
 
@@ -233,7 +234,6 @@ def run(args: argparse.Namespace) -> int:
     run = run_estimate(observations, scene, method=args.method, **options)
     seconds = time.perf_counter() - start
     progress(f"done in {seconds:.1f} s")
-    write_estimate_dir(args.out, run.trajectory)
     record = {
         "command": "estimate",
         **run.summary(),
@@ -252,7 +252,10 @@ def run(args: argparse.Namespace) -> int:
         "wall_time_s": round(seconds, 3),
         "software": f"hvo-graph {package_version()}, {software_versions()}",
     }
-    write_run_record(args.out, record)
+    # All files or none: a failure or Ctrl-C while writing leaves --out as it was.
+    with staged_output(args.out, owned=(*ESTIMATE_FILES, "run.json")) as stage:
+        write_estimate_dir(stage, run.trajectory)
+        write_run_record(stage, record)
     counts = run.summary()["counts"]
     rejected = counts["rejected_points"]  # type: ignore[index]
     note = f"; {rejected} track points rejected as outliers" if rejected else ""

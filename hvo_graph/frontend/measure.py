@@ -41,6 +41,7 @@ from hvo_graph.geometry.decomposition import (
 )
 from hvo_graph.geometry.discrete import (
     camera_pose_from_motion,
+    collinear,
     estimate_homography,
     euclidean_homography,
     ippe_motion,
@@ -90,6 +91,9 @@ HUBER = 2.0
 OUTLIER_CHI2 = 13.815510557964274
 
 POSE_SOLVERS = ("homography", "ippe")
+
+#: Points this many pixel sigmas (RMS) from a line fix no homography: no measurement.
+COLLINEAR_SIGMAS = 3.0
 
 
 @dataclass(frozen=True)
@@ -279,7 +283,9 @@ class MeasurementFrontEnd:
             self._reference = self._previous
             m_ref, m_cur, shared = _common(self._reference, ids, m, with_ids=True)
         ref = self._reference
-        if len(m_ref) < self.config.min_points:
+        if len(m_ref) < self.config.min_points or any(
+            collinear(m_, COLLINEAR_SIGMAS * self._sigma) for m_ in (m_ref, m_cur)
+        ):
             return None, None, None
         if self.config.pose_solver == "ippe" and self._normal is None:
             raise InputError("pose_solver 'ippe' needs the plane normal in the camera file")
@@ -448,7 +454,7 @@ class MeasurementFrontEnd:
         if self._normal is None:
             return None
         m0, m1 = _common(prev, frame.ids, frame.m)
-        if len(m0) < self.config.min_points:
+        if len(m0) < self.config.min_points or collinear(m0, COLLINEAR_SIGMAS * self._sigma):
             return None
         motions = [(f.R, f.T) for f in (prev, frame) if f.R is not None]
         if not motions:

@@ -57,7 +57,9 @@ class CameraModel:
             as_number(getattr(self, name), f"camera.{name}")
         for name in ("width", "height"):
             value = getattr(self, name)
-            if int(value) != value or value <= 0:
+            # as_number first: int() of inf or NaN would raise OverflowError/ValueError.
+            x = as_number(value, f"camera.{name}", above=0.0, what="an integer")
+            if int(x) != x:
                 raise InputError(f"camera.{name}: expected a positive integer, got {value}")
         if self.distortion_model not in DISTORTION_MODELS:
             raise InputError(

@@ -170,6 +170,22 @@ def _dlt(m_ref: np.ndarray, m_cur: np.ndarray) -> np.ndarray:
     return H / np.linalg.norm(H)
 
 
+def collinear(m: np.ndarray, tolerance: float) -> bool:
+    """True when points lie on one line within ``tolerance`` (RMS distance from their
+    best-fitting line): no homography is determined by them (a line fixes 5 of its 8
+    degrees of freedom).
+
+    Args:
+        m: (N, 2) or (N, 3) points (normalized coordinates; only x, y are read).
+        tolerance: RMS distance, in the units of ``m``.
+    """
+    m = np.asarray(m, dtype=float)
+    if len(m) < 3:
+        return True
+    xy = m[:, :2] - m[:, :2].mean(axis=0)
+    return bool(np.linalg.svd(xy, compute_uv=False)[-1] / np.sqrt(len(xy)) < tolerance)
+
+
 def estimate_homography(
     m_ref: np.ndarray, m_cur: np.ndarray, *, ransac_threshold: float | None = None
 ) -> tuple[np.ndarray, np.ndarray]:

@@ -13,7 +13,10 @@ from __future__ import annotations
 
 import os
 import secrets
-from collections.abc import Sequence
+import shutil
+import tempfile
+from collections.abc import Iterator, Sequence
+from contextlib import contextmanager
 from pathlib import Path
 
 import numpy as np
@@ -41,6 +44,40 @@ def atomic_write_text(path: PathLike, text: str) -> None:
     except BaseException:
         tmp.unlink(missing_ok=True)
         raise
+
+
+@contextmanager
+def staged_output(
+    directory: PathLike, owned: Sequence[str], last: Sequence[str] = ("run.json",)
+) -> Iterator[Path]:
+    """Write a set of files into ``directory`` all or nothing.
+
+    Yields a staging folder (hidden, inside ``directory``, so on the same file
+    system); what the block writes there is moved into ``directory`` only when the
+    block ends without an exception (each file by ``os.replace``, the ``last`` names
+    after the others, so a complete ``run.json`` marks a complete output). Names of
+    ``owned`` that the block did not write are removed from ``directory`` (a stale
+    ``covariance.csv`` must not sit next to new poses). On an error or Ctrl-C the
+    staging folder is removed and ``directory`` keeps what it had; other files in
+    ``directory`` are never touched.
+    """
+    directory = Path(directory)
+    directory.mkdir(parents=True, exist_ok=True)
+    stage = Path(tempfile.mkdtemp(prefix=".staging-", dir=directory))
+    try:
+        yield stage
+        written = sorted(p.name for p in stage.iterdir())
+        for name in written:
+            if name not in last:
+                os.replace(stage / name, directory / name)
+        for name in owned:
+            if name not in written:
+                (directory / name).unlink(missing_ok=True)
+        for name in last:
+            if name in written:
+                os.replace(stage / name, directory / name)
+    finally:
+        shutil.rmtree(stage, ignore_errors=True)
 
 
 def read_text(path: PathLike) -> str:

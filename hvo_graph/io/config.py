@@ -138,6 +138,24 @@ class _Reader:
         return [self.number(item, f"{key}[{i}]") for i, item in enumerate(node.value)]
 
 
+#: A file's n* must have a length within this of 1 (three written decimals are enough);
+#: it is then normalized. Anything else is a mistake, not a direction to guess.
+UNIT_NORMAL_TOLERANCE = 1e-3
+
+
+def _check_unit(r: _Reader, node: yaml.Node, normal: np.ndarray) -> None:
+    if normal.shape != (3,):
+        return  # Plane names the wrong length
+    norm = float(np.linalg.norm(normal))
+    if abs(norm - 1.0) > UNIT_NORMAL_TOLERANCE:
+        hint = (
+            f"; did you mean [{', '.join(f'{x:.4g}' for x in normal / norm)}]?" if norm > 0 else ""
+        )
+        raise r.error(
+            node, f"plane.normal: expected a unit vector (length 1), got length {norm:.6g}{hint}"
+        )
+
+
 def load_scene(path: PathLike) -> SceneConfig:
     """Read the contract's camera/scene YAML.
 
@@ -195,6 +213,7 @@ def load_scene(path: PathLike) -> SceneConfig:
         isinstance(pl["normal"][1], yaml.ScalarNode) and pl["normal"][1].tag.endswith(":null")
     ):
         normal = np.array(r.numbers(pl["normal"][1], "plane.normal"))
+        _check_unit(r, pl["normal"][1], normal)
     try:
         plane = Plane(distance=distance, normal=normal)
     except InputError as exc:

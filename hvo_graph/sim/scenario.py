@@ -66,9 +66,10 @@ import numpy as np
 
 from hvo_graph.errors import InputError, as_integer, as_number
 from hvo_graph.geometry.camera import CameraModel
+from hvo_graph.io._common import staged_output
 from hvo_graph.io.config import SceneConfig, save_scene
 from hvo_graph.io.tracks import write_tracks
-from hvo_graph.io.trajectory import write_groundtruth_dir
+from hvo_graph.io.trajectory import GROUNDTRUTH_FILES, write_groundtruth_dir
 from hvo_graph.types import FrameObservations, Plane, Trajectory
 
 #: The paper's noisy run: pixel variance 0.05 px^2 (sigma 0.2236 px).
@@ -359,11 +360,15 @@ def simulate(config: ScenarioConfig | None = None) -> Scenario:
 def write_scenario(directory: str | Path, scenario: Scenario) -> None:
     """Write a ``simulate`` folder: camera.yaml (with noise.pixel_sigma), tracks.csv
     (noisy), groundtruth.txt (TUM, T_wc) and groundtruth_velocity.csv. Creates the folder."""
-    directory = Path(directory)
-    directory.mkdir(parents=True, exist_ok=True)
-    save_scene(
-        directory / "camera.yaml",
-        SceneConfig(camera=scenario.camera, plane=scenario.plane, pixel_sigma=scenario.pixel_sigma),
-    )
-    write_tracks(directory / "tracks.csv", scenario.observations)
-    write_groundtruth_dir(directory, scenario.groundtruth)
+    files = ("camera.yaml", "tracks.csv", *GROUNDTRUTH_FILES)
+    # All files or none (a failure or Ctrl-C leaves the folder as it was); camera.yaml
+    # last, so a folder with a camera file is a complete sequence.
+    with staged_output(directory, owned=files, last=("camera.yaml",)) as stage:
+        save_scene(
+            stage / "camera.yaml",
+            SceneConfig(
+                camera=scenario.camera, plane=scenario.plane, pixel_sigma=scenario.pixel_sigma
+            ),
+        )
+        write_tracks(stage / "tracks.csv", scenario.observations)
+        write_groundtruth_dir(stage, scenario.groundtruth)
