@@ -216,6 +216,7 @@ def run(args: argparse.Namespace) -> int:
         "software": f"hvo-graph {package_version()}, {software_versions()}",
     }
     write_run_record(args.out, record)
+    _report_health(run.frames)
     counts = run.summary()["counts"]
     rejected = counts["rejected_points"]  # type: ignore[index]
     note = f"; {rejected} track points rejected as outliers" if rejected else ""
@@ -223,6 +224,18 @@ def run(args: argparse.Namespace) -> int:
         f"{PROG} estimate: wrote {len(run.trajectory)} frames ({args.method}) to {args.out}{note}"
     )
     return 0
+
+
+def _report_health(frames: list) -> None:
+    """The front end's health on stderr, always (a lost pose must never go unnoticed)."""
+    import sys
+
+    from hvo_graph.frontend.health import front_end_health
+
+    health = front_end_health(frames)
+    print(f"{PROG} estimate: front end: {health.summary()}", file=sys.stderr)
+    for warning in health.warnings():
+        print(f"{PROG} estimate: warning: {warning}", file=sys.stderr)
 
 
 #: ``estimate`` options: argparse dest -> library option name.
