@@ -13,8 +13,8 @@ re-acquisitions: a new reference taken after the old one's points were lost).
 from __future__ import annotations
 
 from collections.abc import Sequence
-from itertools import pairwise
 from dataclasses import asdict, dataclass
+from itertools import pairwise
 
 import numpy as np
 
