@@ -1,4 +1,4 @@
-"""The ``hvo-graph`` command: ``simulate``, ``estimate`` and ``evaluate`` (docs/conventions.md).
+"""The ``hvo-graph`` command and its subcommands (docs/conventions.md).
 
 A thin layer over the library: it parses arguments, reads the contract's files,
 calls :func:`hvo_graph.sim.scenario.simulate`, :func:`hvo_graph.pipeline.estimate`
@@ -21,7 +21,7 @@ import argparse
 import sys
 from collections.abc import Sequence
 
-from hvo_graph.cli import estimate, evaluate, simulate
+from hvo_graph.cli import estimate, evaluate, plane, simulate
 from hvo_graph.cli._common import PROG
 from hvo_graph.cli.estimate import IMAGE_RANSAC_PX, KALMAN_R, METHODS, ROBUST
 from hvo_graph.errors import InputError
@@ -29,7 +29,7 @@ from hvo_graph.errors import InputError
 __all__ = ["IMAGE_RANSAC_PX", "KALMAN_R", "METHODS", "PROG", "ROBUST", "build_parser", "main"]
 
 #: The subcommands, in the order ``--help`` lists them; each module registers its parser.
-SUBCOMMANDS = (simulate, estimate, evaluate)
+SUBCOMMANDS = (simulate, estimate, evaluate, plane)
 
 
 def build_parser() -> argparse.ArgumentParser:

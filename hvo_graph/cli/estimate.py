@@ -169,6 +169,20 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
     images.add_argument(
         "--save-tracks", metavar="FILE", default=None, help="also write the tracks CSV here"
     )
+    images.add_argument(
+        "--plane",
+        choices=("auto",),
+        default=None,
+        help="auto: n*, d* from the --target seen in the first image (the camera file's "
+        "plane section may then be left out); default: the camera file's",
+    )
+    images.add_argument(
+        "--target",
+        metavar="SPEC",
+        default=None,
+        help="with --plane auto: chessboard:COLSxROWS:SQUARE, "
+        "charuco:COLSxROWS:SQUARE:MARKER:DICT or aruco:COLSxROWS:MARKER:GAP:DICT",
+    )
 
     est.set_defaults(handler=run)
 
@@ -180,7 +194,9 @@ def run(args: argparse.Namespace) -> int:
     from hvo_graph.pipeline import FRONT_END_OPTIONS, run_estimate
     from hvo_graph.report.tables import software_versions
 
-    scene = load_scene(args.camera)
+    scene = _auto_scene(args) if args.plane == "auto" else load_scene(args.camera)
+    if args.target is not None and args.plane != "auto":
+        raise InputError("--target: only with --plane auto")
     if args.images is not None:
         observations = _track_images(args, scene.camera)
         if args.save_tracks:
@@ -211,7 +227,9 @@ def run(args: argparse.Namespace) -> int:
             "camera": str(args.camera),
             **({"images": str(args.images)} if args.images else {"tracks": str(args.tracks)}),
             **({"config": str(args.config)} if args.config else {}),
+            **({"target": str(args.target)} if args.plane == "auto" else {}),
         },
+        "plane": {"distance": scene.plane.distance, "normal": _listed(scene.plane.normal)},
         "wall_time_s": round(seconds, 3),
         "software": f"hvo-graph {package_version()}, {software_versions()}",
     }
@@ -309,7 +327,7 @@ def _apply_config(args: argparse.Namespace, path: str) -> None:
     if not isinstance(data, dict):
         raise InputError(f"{path}: expected a mapping of option names to values")
     actions = {a.dest: a for a in args.options_parser._actions if a.option_strings}
-    fixed = {"camera", "tracks", "images", "out", "config", "help", "method"}
+    fixed = {"camera", "tracks", "images", "out", "config", "help", "method", "plane", "target"}
     for key, value in data.items():
         dest = str(key).replace("-", "_")
         action = actions.get(dest)
@@ -335,6 +353,27 @@ def _config_value(path: str, key: str, action: argparse.Action, value: object) -
         choices = ", ".join(map(str, action.choices))
         raise InputError(f"{path}: {key}: expected one of {choices}, got {value!r}")
     return parsed
+
+
+def _auto_scene(args: argparse.Namespace) -> object:
+    """The scene of ``--plane auto``: the camera file's camera, the plane of the target
+    in the first image (:mod:`hvo_graph.frontend.target`)."""
+    from hvo_graph.frontend.target import first_image, parse_target, plane_from_target
+    from hvo_graph.io.config import SceneConfig, load_camera
+
+    if args.target is None:
+        raise InputError("--plane auto: needs --target (the board seen in the first image)")
+    if args.images is None:
+        raise InputError("--plane auto: needs --images (the first image shows the target)")
+    spec = parse_target(args.target)
+    camera, _, pixel_sigma = load_camera(args.camera)
+    found = plane_from_target(first_image(args.images, camera), camera, spec)
+    progress(f"plane from the {spec.kind}: d* = {found.plane.distance:.4f} m")
+    return SceneConfig(camera, found.plane, pixel_sigma)
+
+
+def _listed(normal: object) -> list[float] | None:
+    return None if normal is None else [float(x) for x in normal]  # type: ignore[union-attr]
 
 
 def _track_images(args: argparse.Namespace, camera: CameraModel) -> list[FrameObservations]:

@@ -27,13 +27,14 @@ A target is named by a compact specification, the same on every command::
 from __future__ import annotations
 
 from dataclasses import dataclass
+from pathlib import Path
 
 import cv2
 import numpy as np
 
 from hvo_graph.errors import InputError, as_number
 from hvo_graph.geometry.camera import CameraModel
-from hvo_graph.io.images import as_gray_image
+from hvo_graph.io.images import IMAGE_EXTENSIONS, as_gray_image, load_image_sequence
 from hvo_graph.types import Plane
 
 #: Target kinds of :func:`parse_target`.
@@ -255,3 +256,23 @@ def plane_from_height(height: float, tilt_deg: float) -> Plane:
         raise InputError(f"tilt: expected degrees in (-90, 90], got {tilt_deg}")
     r = np.deg2rad(a)
     return Plane(h, np.array([0.0, np.cos(r), np.sin(r)]))
+
+
+def first_image(path: str | Path, camera: CameraModel) -> np.ndarray:
+    """The first frame a sequence starts with: an image file itself, the first image of a
+    folder (in the order ``estimate --images`` reads it) or a video's first frame.
+
+    Returns:
+        (H, W) gray uint8 image, the camera's size.
+    """
+    path = Path(path)
+    if path.is_file() and path.suffix.lower() in IMAGE_EXTENSIONS:
+        data = np.fromfile(path, dtype=np.uint8)
+        image = cv2.imdecode(data, cv2.IMREAD_GRAYSCALE) if data.size else None
+        if image is None:
+            raise InputError(f"{path}: cannot read the image (not a valid image file)")
+        return as_gray_image(image, str(path), camera)
+    frames, _ = load_image_sequence(path, camera=camera)
+    for image in frames:
+        return as_gray_image(image, str(path), camera)
+    raise InputError(f"{path}: no frames")
