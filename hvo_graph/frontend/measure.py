@@ -249,15 +249,13 @@ class MeasurementFrontEnd:
         if pose is None and self._normal is not None and prev is not None and prev.R is not None:
             R, T = motion_after_twist(prev.R, prev.T, self._last_twist, obs.t - prev.t)
         frame = _Frame(obs.index, obs.t, ids, m, R, T)
-        velocity = self._measure_velocity(frame) if self._previous is not None else None
-        if velocity is not None:
-            self._last_twist = np.asarray(velocity.twist, dtype=float)
+        velocity = self._measure_velocity(frame) if prev is not None else None
+        self._last_twist = self._last_twist if velocity is None else np.asarray(velocity.twist)
         limit = self.config.keyframe_min_points  # a new reference must see this many points
         lost = len(np.intersect1d(self._reference.ids, ids)) < self.config.min_points
         if pose is None and R is not None and lost and limit and len(ids) >= limit:
-            # Re-acquisition: the reference's points are gone, this frame sees new ones. It
-            # becomes the reference at its predicted pose; estimators re-place the plane at
-            # their own estimate of it (keyframe plane Jacobian): the graph bridges the gap.
+            # Re-acquisition: a new reference at its predicted pose; the estimators re-place
+            # the plane at their own estimate of it (keyframe plane Jacobian).
             self._reference = frame
         self._previous = frame
         rejected = self._rejected_now + len(obs.ids) - len(ids)
