@@ -19,13 +19,15 @@ apart. For such a pair:
 
 SIFT's keypoints are only as precise as their scale (on OpenCV's graf1 -> graf3
 pair their mean transfer error under the published homography is about 1.7 px);
-the aligned corners are sub-pixel (about 0.4 px there). Corners are compared in
-undistorted pixels for the homographies when the camera has distortion; the
-points returned are raw pixels, as tracks are.
+the aligned corners are sub-pixel (about 0.4 px there). With lens distortion both
+images are first undistorted (``cv2.undistort``, same K), where the plane maps by a
+homography; the points returned are raw pixels again, as tracks are.
 
 Repetitive patterns defeat step 1: on a chessboard every inner corner looks the
 same, and a static background seen by both images is a larger plane than the
-board. Such pairs need the target's own corners (:mod:`hvo_graph.frontend.target`).
+board. For such pairs the homography of the target's corners
+(:mod:`hvo_graph.frontend.target`) replaces step 1 (``initial_homography``); the
+corners, their positions and everything measured from them are still this path's.
 """
 
 from __future__ import annotations
@@ -56,8 +58,8 @@ class PairMatches:
     Attributes:
         uv_a: (N, 2) raw pixels in the first image.
         uv_b: (N, 2) raw pixels of the same plane points in the second image.
-        homography: (3, 3) first -> second image, fitted to the pairs (undistorted
-            pixels when the camera has distortion, else raw pixels).
+        homography: (3, 3) first -> second image, fitted to the pairs (in undistorted
+            pixels when the camera has distortion).
         sift_matches: SIFT matches consistent with the initial homography.
     """
 
@@ -75,14 +77,23 @@ class PairMatches:
         ]
 
 
-def _undistorted(camera: CameraModel | None, uv: np.ndarray) -> np.ndarray:
+def _pinhole(camera: CameraModel | None, image: np.ndarray) -> np.ndarray:
+    """The image as an ideal pinhole camera with the same K would see it (plane points then
+    map by a homography); unchanged without distortion."""
     if camera is None or not camera.has_distortion:
-        return np.asarray(uv, dtype=np.float64).reshape(-1, 2)
-    m = camera.pixel_to_normalized(np.asarray(uv, dtype=float))
-    return (m @ camera.K.T)[:, :2]
+        return image
+    return cv2.undistort(image, camera.K, camera.distortion)
 
 
-def _sift_homography(a: np.ndarray, b: np.ndarray, camera: CameraModel | None) -> tuple:
+def _raw(camera: CameraModel | None, uv: np.ndarray) -> np.ndarray:
+    """Pinhole pixels back to the camera's raw (distorted) pixels."""
+    if camera is None or not camera.has_distortion:
+        return uv
+    m = np.column_stack(((uv[:, 0] - camera.cx) / camera.fx, (uv[:, 1] - camera.cy) / camera.fy))
+    return camera.normalized_to_pixel(m)
+
+
+def _sift_homography(a: np.ndarray, b: np.ndarray) -> tuple[np.ndarray, int]:
     sift = cv2.SIFT_create()
     ka, da = sift.detectAndCompute(a, None)
     kb, db = sift.detectAndCompute(b, None)
@@ -92,8 +103,8 @@ def _sift_homography(a: np.ndarray, b: np.ndarray, camera: CameraModel | None) -
     good = [p[0] for p in pairs if len(p) == 2 and p[0].distance < RATIO * p[1].distance]
     if len(good) < MIN_MATCHES:
         raise InputError(f"images: only {len(good)} distinctive matches between the two images")
-    pa = _undistorted(camera, np.array([ka[m.queryIdx].pt for m in good]))
-    pb = _undistorted(camera, np.array([kb[m.trainIdx].pt for m in good]))
+    pa = np.array([ka[m.queryIdx].pt for m in good])
+    pb = np.array([kb[m.trainIdx].pt for m in good])
     H, inliers = cv2.findHomography(pa, pb, cv2.USAC_MAGSAC, SIFT_RANSAC_PX)
     count = 0 if inliers is None else int(inliers.sum())
     if H is None or count < MIN_MATCHES:
@@ -106,6 +117,7 @@ def match_pair(
     image_b: np.ndarray,
     camera: CameraModel | None = None,
     config: TrackerConfig | None = None,
+    initial_homography: np.ndarray | None = None,
 ) -> PairMatches:
     """Corners of ``image_a`` found in ``image_b`` across a wide baseline (module docstring).
 
@@ -115,53 +127,44 @@ def match_pair(
         camera: the calibrated camera (images must be its size), or None for raw pixels.
         config: the tracker's settings (corner detector, Lucas-Kanade window,
             forward-backward threshold, border margin, RANSAC threshold).
+        initial_homography: (3, 3) a first guess of the plane homography a -> b
+            (undistorted pixels when the camera has distortion) in place of the SIFT
+            step, e.g. from a target's corners where SIFT cannot tell them apart.
     Returns:
         The matched corners and the plane homography.
     Raises:
         InputError: too few distinctive or consistent matches.
     """
     c = config or TrackerConfig()
-    a = as_gray_image(image_a, "image_a", camera)
-    b = as_gray_image(image_b, "image_b", camera)
-    H0, sift_count = _sift_homography(a, b, camera)
+    a = _pinhole(camera, as_gray_image(image_a, "image_a", camera))
+    b = _pinhole(camera, as_gray_image(image_b, "image_b", camera))
+    if initial_homography is None:
+        H0, sift_count = _sift_homography(a, b)
+    else:
+        H0, sift_count = np.asarray(initial_homography, dtype=float).reshape(3, 3), 0
     corners = cv2.goodFeaturesToTrack(
         a, c.max_features, c.quality_level, max(c.min_distance, 1.0), blockSize=c.block_size
     )
     if corners is None:
         raise InputError("image_a: no corners to match")
     uv_a = corners.reshape(-1, 2).astype(np.float64)
-    # Raw-pixel warp for the patches' appearance only; the alignment finds the points.
-    G = H0 if camera is None or not camera.has_distortion else _raw_homography(uv_a, H0, camera)
     warped = cv2.warpPerspective(
-        a, G, (b.shape[1], b.shape[0]), flags=cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE
+        a, H0, (b.shape[1], b.shape[0]), flags=cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE
     )
-    predicted = cv2.perspectiveTransform(uv_a.reshape(-1, 1, 2), G).reshape(-1, 2)
+    predicted = cv2.perspectiveTransform(uv_a.reshape(-1, 1, 2), H0).reshape(-1, 2)
     uv_b, ok = _aligned(warped, b, predicted.astype(np.float32), c)
-    size = b.shape[1], b.shape[0]
+    size = np.array([b.shape[1], b.shape[0]])
     margin = c.border_margin_px
-    ok &= np.all((uv_b >= margin - 0.5) & (uv_b <= np.array(size) - 0.5 - margin), axis=1)
+    ok &= np.all((uv_b >= margin - 0.5) & (uv_b <= size - 0.5 - margin), axis=1)
     idx = np.flatnonzero(ok)
     if len(idx) < MIN_MATCHES:
         raise InputError(f"images: only {len(idx)} corners aligned in the second image")
     threshold = c.ransac_threshold_px if c.ransac_threshold_px is not None else 1.0
-    src, dst = _undistorted(camera, uv_a[idx]), _undistorted(camera, uv_b[idx])
-    H, inliers = cv2.findHomography(src, dst, cv2.RANSAC, threshold, maxIters=5000)
+    H, inliers = cv2.findHomography(uv_a[idx], uv_b[idx], cv2.RANSAC, threshold, maxIters=5000)
     if H is None or int(inliers.sum()) < MIN_MATCHES:
         raise InputError("images: the aligned corners agree on no plane")
     keep = idx[inliers.ravel() > 0]
-    return PairMatches(uv_a[keep], uv_b[keep].astype(np.float64), H, sift_count)
-
-
-def _raw_homography(uv_a: np.ndarray, H: np.ndarray, camera: CameraModel) -> np.ndarray:
-    """The raw-pixel homography closest to ``H`` (undistorted pixels) over the corners."""
-    moved = cv2.perspectiveTransform(_undistorted(camera, uv_a).reshape(-1, 1, 2), H)
-    moved = moved.reshape(-1, 2)
-    m = np.column_stack(
-        ((moved[:, 0] - camera.cx) / camera.fx, (moved[:, 1] - camera.cy) / camera.fy)
-    )
-    raw = camera.normalized_to_pixel(m)
-    G, _ = cv2.findHomography(uv_a, raw, 0)
-    return G if G is not None else H
+    return PairMatches(_raw(camera, uv_a[keep]), _raw(camera, uv_b[keep]), H, sift_count)
 
 
 def _aligned(

@@ -218,6 +218,8 @@ class MeasurementFrontEnd:
         self._reference: _Frame | None = None
         self._previous: _Frame | None = None
         self._normal: np.ndarray | None = None if plane.normal is None else plane.normal
+        if self.config.pose_solver == "ippe" and self._normal is None:
+            raise InputError("pose_solver 'ippe' needs the plane normal in the camera file")
         self._normal_candidates: list[list[np.ndarray]] = []
         #: frames in which each track id was rejected; ids at ``reject_after`` are excluded.
         self._rejections: dict[int, int] = {}
@@ -244,7 +246,10 @@ class MeasurementFrontEnd:
         if self._reference is None:
             self._reference = _Frame(obs.index, obs.t, ids, m, np.eye(3), np.zeros(3))
             self._world_index = obs.index
-        R, T, pose = self._measure_pose(ids, m)
+        try:
+            R, T, pose = self._measure_pose(ids, m)
+        except InputError:  # points geometry refuses (degenerate, behind the camera): no pose
+            R, T, pose = None, None, None
         prev = self._previous  # no pose: carry the last motion on at the last twist
         if pose is None and self._normal is not None and prev is not None and prev.R is not None:
             R, T = motion_after_twist(prev.R, prev.T, self._last_twist, obs.t - prev.t)
@@ -293,8 +298,6 @@ class MeasurementFrontEnd:
         ref = self._reference
         if len(m_ref) < self.config.min_points:
             return None, None, None
-        if self.config.pose_solver == "ippe" and self._normal is None:
-            raise InputError("pose_solver 'ippe' needs the plane normal in the camera file")
         if self._normal is None:  # only while still on frame 0: estimate n* from parallax
             motion = self._homography_motion(m_ref, m_cur, None)
             if motion is None:
@@ -413,18 +416,15 @@ class MeasurementFrontEnd:
         returns None until n* is known.
         """
         threshold = self.config.ransac_px if len(m_ref) >= ROBUST_MIN_POINTS else None
-        try:
-            H, inliers = estimate_homography(
-                m_ref,
-                m_cur,
-                ransac_threshold=None if threshold is None else threshold / self.camera.mean_focal,
-            )
-            if np.count_nonzero(inliers) < self.config.min_points:
-                return None
-            m_ref, m_cur = m_ref[inliers], m_cur[inliers]
-            H = euclidean_homography(H, m_ref, m_cur)
-        except InputError:  # degenerate points (a blurred frame, a wrong consensus): no pose
+        H, inliers = estimate_homography(
+            m_ref,
+            m_cur,
+            ransac_threshold=None if threshold is None else threshold / self.camera.mean_focal,
+        )
+        if np.count_nonzero(inliers) < self.config.min_points:
             return None
+        m_ref, m_cur = m_ref[inliers], m_cur[inliers]
+        H = euclidean_homography(H, m_ref, m_cur)
         if plane is None:
             return (
                 (np.eye(3), np.zeros(3), inliers)
