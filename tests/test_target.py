@@ -130,6 +130,8 @@ def test_plane_from_height_and_tilt():
         ("chessboard:1x6:0.02", "at least 2x2"),
         ("chessboard:9x6:0", "SQUARE: expected a finite number > 0"),
         ("charuco:5x7:0.04:0.05:DICT_4X4_50", "MARKER must be smaller than SQUARE"),
+        ("aruco:5x7:0.04:-0.01:DICT_4X4_50", "GAP: expected a finite number > 0"),
+        ("charuco:5x7:0.04:nan:DICT_4X4_50", "MARKER: expected a finite number > 0"),
         ("charuco:5x7:0.04:0.03:DICT_NOPE", "unknown ArUco dictionary 'DICT_NOPE'"),
     ],
 )

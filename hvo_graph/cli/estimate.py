@@ -173,8 +173,8 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
         "--plane",
         choices=("auto",),
         default=None,
-        help="auto: n*, d* from the --target seen in the first image (the camera file's "
-        "plane section may then be left out); default: the camera file's",
+        help="auto: n*, d* from the --target seen in the first image, in place of the "
+        "camera file's plane section (which may be left out); default: the camera file's",
     )
     images.add_argument(
         "--target",

@@ -118,9 +118,8 @@ def parse_target(spec: str) -> TargetSpec:
     least = 2 if kind != "aruco" else 1
     if columns < least or rows < least or (kind == "charuco" and columns * rows < 4):
         raise InputError(f"target {spec!r}: expected at least {least}x{least} in {form}")
-    for name, value in zip(
-        ("SQUARE" if kind != "aruco" else "MARKER", "2nd size"), sizes, strict=False
-    ):
+    names = form.split(":")[2 : 2 + len(sizes)]  # SQUARE [MARKER] or MARKER GAP
+    for name, value in zip(names, sizes, strict=True):
         as_number(value, f"target {spec!r}: {name}", above=0.0)
     if kind == "chessboard":
         return TargetSpec(kind, columns, rows, sizes[0])
