@@ -130,6 +130,7 @@ def test_health_counts_on_a_hand_made_sequence():
     health = front_end_health(frames)
     assert (health.frames, health.frames_with_pose, health.frames_with_velocity) == (6, 3, 0)
     assert (health.longest_gap, health.longest_gap_start) == (2, 2)
+    assert health.gaps == ((0, 0), (2, 3))
     assert (health.tracks_min, health.tracks_median, health.tracks_max) == (3, 24.0, 40)
     assert health.rejected_points == 2
     # 0 -> 3 (frame 3 had no pose: after a loss) -> 4 (a keyframe with its own pose)
@@ -164,4 +165,5 @@ def test_estimate_command_reports_a_lost_pose(tmp_path):
     )
     health = json.loads((out / "run.json").read_text())["front_end_health"]
     assert health["frames_with_pose"] == 61 and health["longest_gap"] == 30
+    assert health["gaps"] == [[30, 59]]
     assert health["fraction_without_pose"] == round(30 / 91, 4)

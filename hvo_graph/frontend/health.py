@@ -39,6 +39,7 @@ class FrontEndHealth:
         reference_changes: times the pose reference moved to another frame.
         reacquisitions: of those, moves to a frame without a pose of its own (the
             reference's points were lost and the pose was picked up again).
+        gaps: (first, last) frame indices of every stretch without a pose measurement.
     """
 
     frames: int
@@ -52,6 +53,7 @@ class FrontEndHealth:
     rejected_points: int
     reference_changes: int
     reacquisitions: int
+    gaps: tuple[tuple[int, int], ...] = ()
 
     @property
     def fraction_without_pose(self) -> float:
@@ -93,13 +95,14 @@ def front_end_health(frames: Sequence[FrameMeasurement]) -> FrontEndHealth:
         The counts of :class:`FrontEndHealth`.
     """
     has_pose = [f.pose is not None for f in frames]
-    longest, start, run_start = 0, None, 0
+    gaps, run_start = [], 0
     for k, ok in enumerate([*has_pose, True]):
         if not ok:
             continue
-        if k - run_start > longest:
-            longest, start = k - run_start, frames[run_start].index
+        if k > run_start:
+            gaps.append((frames[run_start].index, frames[k - 1].index, k - run_start))
         run_start = k + 1
+    longest = max(gaps, key=lambda g: g[2], default=(None, None, 0))
     tracks = np.array([f.num_points for f in frames], dtype=int)
     references = [f.pose.reference for f in frames if f.pose is not None]
     changes = [b for a, b in pairwise(references) if b != a]
@@ -108,12 +111,13 @@ def front_end_health(frames: Sequence[FrameMeasurement]) -> FrontEndHealth:
         frames=len(frames),
         frames_with_pose=int(sum(has_pose)),
         frames_with_velocity=sum(f.velocity is not None for f in frames),
-        longest_gap=longest,
-        longest_gap_start=start,
+        longest_gap=longest[2],
+        longest_gap_start=longest[0],
         tracks_min=int(tracks.min()) if len(tracks) else 0,
         tracks_median=float(np.median(tracks)) if len(tracks) else 0.0,
         tracks_max=int(tracks.max()) if len(tracks) else 0,
         rejected_points=sum(f.num_rejected for f in frames),
         reference_changes=len(changes),
         reacquisitions=sum(r in without_pose for r in changes),
+        gaps=tuple((first, last) for first, last, _ in gaps),
     )
