@@ -7,7 +7,7 @@ BIN    := $(VENV)/bin
 STAMP  := $(VENV)/.installed
 DEMO_OUT ?= out/demo
 
-.PHONY: help demo test lint format figures clean
+.PHONY: help demo test lint format figures clean realdata
 .DEFAULT_GOAL := help
 
 # Each target's line carries its "## description"; help lists them.
@@ -48,6 +48,28 @@ figures: $(STAMP) ## regenerate docs/figures and the experiment tables (long)
 	$(BIN)/python experiments/generalization.py
 	$(BIN)/python experiments/images.py
 	$(BIN)/python experiments/benchmark.py
+
+# Real images for the tests (not in the repository): OpenCV's sample data from Debian's
+# opencv-doc package (Apache-2.0 / BSD-3-Clause; its copyright file is copied along):
+# 13 views of a 9x6 chessboard with left_intrinsics.yml, and graf1/graf3 with H1to3p.xml.
+REALDATA := data/real/opencv
+REALDATA_FILES := left01.jpg left02.jpg left03.jpg left04.jpg left05.jpg left06.jpg \
+	left07.jpg left08.jpg left09.jpg left11.jpg left12.jpg left13.jpg left14.jpg \
+	left_intrinsics.yml graf1.png graf3.png H1to3p.xml
+
+realdata: $(REALDATA)/H1to3p.xml ## fetch OpenCV's real sample images for the tests (apt-get download)
+
+$(REALDATA)/H1to3p.xml:
+	@command -v apt-get >/dev/null && command -v dpkg >/dev/null || \
+		{ echo "realdata: needs apt-get and dpkg (Debian or Ubuntu) to fetch opencv-doc"; exit 1; }
+	rm -rf data/real/.fetch && mkdir -p data/real/.fetch $(REALDATA)
+	cd data/real/.fetch && apt-get download opencv-doc
+	dpkg -x data/real/.fetch/opencv-doc_*.deb data/real/.fetch/x
+	for f in $(REALDATA_FILES); do \
+		cp data/real/.fetch/x/usr/share/doc/opencv-doc/examples/data/$$f $(REALDATA)/ || exit 1; \
+	done
+	cp data/real/.fetch/x/usr/share/doc/opencv-doc/copyright $(REALDATA)/COPYRIGHT
+	rm -rf data/real/.fetch
 
 clean: ## remove .venv, out/ and caches
 	rm -rf $(VENV) out .pytest_cache .ruff_cache

@@ -33,6 +33,7 @@ from hvo_graph.frontend import (
     MeasurementFrontEnd,
     measure_sequence,
 )
+from hvo_graph.frontend.health import front_end_health
 from hvo_graph.geometry.camera import CameraModel
 from hvo_graph.types import FrameMeasurement, FrameObservations, Plane, Trajectory
 
@@ -146,7 +147,8 @@ class EstimateRun:
     excluded_tracks: frozenset[int] = frozenset()
 
     def summary(self) -> dict[str, object]:
-        """The run as plain values: settings in force, noise chosen, data rejected."""
+        """The run as plain values: settings in force, noise chosen, data rejected, and the
+        front end's health (:func:`~hvo_graph.frontend.health.front_end_health`)."""
         est = self.estimator
         defaults = EstimatorOptions()
         applicable = [o for o in registry_method(self.method).options if o != "online"]
@@ -180,6 +182,7 @@ class EstimateRun:
             }
             | {"ransac_px_in_force": self.front_end.ransac_px},
             "counts": counts,
+            "front_end_health": front_end_health(self.frames).as_dict(),
         }
 
 

@@ -156,11 +156,12 @@ def test_points_appearing_and_vanishing_are_matched_by_id():
     assert frames[1].pose is not None
     assert np.allclose(frames[1].pose.position, truth[1].translation(), atol=1e-9)
     assert frames[2].pose is None
-    # Velocity needs the plane in the current frame: from frame 1's pose for
-    # frame 2, none once two frames in a row have no pose.
+    # Velocity needs the plane in the current frame: from frame 1's pose for frame 2,
+    # then from the motion carried on at the last measured twist while poses are missing.
     assert frames[1].velocity is not None and frames[2].velocity is not None
     assert np.allclose(frames[2].velocity.twist, TWIST, atol=2e-3)
-    assert frames[3].velocity is None
+    assert frames[3].pose is None and frames[3].velocity is not None
+    assert np.allclose(frames[3].velocity.twist, TWIST, atol=2e-3)
 
 
 def test_keyframes_keep_poses_coming_when_the_reference_points_leave():

@@ -1,5 +1,5 @@
-"""The ``hvo-graph`` command: ``simulate``, ``estimate``, ``evaluate`` and ``batch``
-(docs/conventions.md, docs/batch.md).
+"""The ``hvo-graph`` command: ``simulate``, ``estimate``, ``evaluate``, ``plane`` and
+``batch`` (docs/conventions.md, docs/batch.md).
 
 A thin layer over the library: it parses arguments, reads the contract's files,
 calls :func:`hvo_graph.sim.scenario.simulate`, :func:`hvo_graph.pipeline.estimate`
@@ -23,7 +23,7 @@ import argparse
 import sys
 from collections.abc import Sequence
 
-from hvo_graph.cli import batch, estimate, evaluate, simulate
+from hvo_graph.cli import batch, estimate, evaluate, plane, simulate
 from hvo_graph.cli._common import PROG, package_version
 from hvo_graph.cli.estimate import IMAGE_RANSAC_PX, KALMAN_R, METHODS, ROBUST
 from hvo_graph.errors import InputError
@@ -31,7 +31,7 @@ from hvo_graph.errors import InputError
 __all__ = ["IMAGE_RANSAC_PX", "KALMAN_R", "METHODS", "PROG", "ROBUST", "build_parser", "main"]
 
 #: The subcommands, in the order ``--help`` lists them; each module registers its parser.
-SUBCOMMANDS = (simulate, estimate, evaluate, batch)
+SUBCOMMANDS = (simulate, estimate, evaluate, plane, batch)
 
 
 def build_parser() -> argparse.ArgumentParser:

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import argparse
 import time
+from typing import TYPE_CHECKING
 
 from hvo_graph.arguments import acceleration_sigma_value, finite_float, int_at_least
 from hvo_graph.cli._common import PROG, package_version, progress
@@ -16,6 +17,10 @@ from hvo_graph.estimators.registry import (
     VELOCITY_FACTOR_POLICIES,
     check_applicable,
 )
+
+if TYPE_CHECKING:  # the heavy modules are imported when the command runs
+    from hvo_graph.io.config import SceneConfig
+    from hvo_graph.io.sequences import Recording
 
 #: ``--method`` choices, from the method registry (the first is the default).
 METHODS: tuple[str, ...] = COMMAND_METHODS
@@ -196,6 +201,20 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
     images.add_argument(
         "--save-tracks", metavar="FILE", default=None, help="also write the tracks CSV here"
     )
+    images.add_argument(
+        "--plane",
+        choices=("auto",),
+        default=None,
+        help="auto: n*, d* from the --target seen in the first image, in place of the "
+        "camera file's plane section (which may be left out); default: the camera file's",
+    )
+    images.add_argument(
+        "--target",
+        metavar="SPEC",
+        default=None,
+        help="with --plane auto: chessboard:COLSxROWS:SQUARE, "
+        "charuco:COLSxROWS:SQUARE:MARKER:DICT or aruco:COLSxROWS:MARKER:GAP:DICT",
+    )
 
     est.set_defaults(handler=run)
 
@@ -210,10 +229,16 @@ def run(args: argparse.Namespace) -> int:
 
     if args.config is not None:  # first: it may set input options such as fps
         _apply_config(args, args.config)
+    if args.target is not None and args.plane != "auto":
+        raise InputError("--target: only with --plane auto")
     recording = None
     if args.images is not None:
         recording = open_recording(args.images, fps=args.fps, topic=args.topic)
-        scene = scene_from_arguments(args, recording)
+        scene = (
+            _auto_scene(args, recording)
+            if args.plane == "auto"
+            else scene_from_arguments(args, recording)
+        )
         observations = track_recording(args, scene, recording)
         if args.save_tracks:
             write_tracks(args.save_tracks, observations)
@@ -221,6 +246,8 @@ def run(args: argparse.Namespace) -> int:
         for flag in ("fps", "topic", "max_features", "save_tracks"):
             if getattr(args, flag) is not None:
                 raise InputError(f"--{flag.replace('_', '-')}: only for --images input")
+        if args.plane == "auto":
+            raise InputError("--plane auto: needs --images (the first image shows the target)")
         scene = scene_from_arguments(args, None)
         observations = read_tracks(args.tracks)
     options = _estimate_options(args)
@@ -248,7 +275,9 @@ def run(args: argparse.Namespace) -> int:
             **({"plane_distance": args.plane_distance} if args.plane_distance else {}),
             **({"plane_normal": args.plane_normal} if args.plane_normal else {}),
             **({"config": str(args.config)} if args.config else {}),
+            **({"target": str(args.target)} if args.plane == "auto" else {}),
         },
+        "plane": {"distance": scene.plane.distance, "normal": _listed(scene.plane.normal)},
         "wall_time_s": round(seconds, 3),
         "software": f"hvo-graph {package_version()}, {software_versions()}",
     }
@@ -256,6 +285,7 @@ def run(args: argparse.Namespace) -> int:
     with staged_output(args.out, owned=(*ESTIMATE_FILES, "run.json")) as stage:
         write_estimate_dir(stage, run.trajectory)
         write_run_record(stage, record)
+    _report_health(run.frames)
     counts = run.summary()["counts"]
     rejected = counts["rejected_points"]  # type: ignore[index]
     note = f"; {rejected} track points rejected as outliers" if rejected else ""
@@ -263,6 +293,18 @@ def run(args: argparse.Namespace) -> int:
         f"{PROG} estimate: wrote {len(run.trajectory)} frames ({args.method}) to {args.out}{note}"
     )
     return 0
+
+
+def _report_health(frames: list) -> None:
+    """The front end's health on stderr, always (a lost pose must never go unnoticed)."""
+    import sys
+
+    from hvo_graph.frontend.health import front_end_health
+
+    health = front_end_health(frames)
+    print(f"{PROG} estimate: front end: {health.summary()}", file=sys.stderr)
+    for warning in health.warnings():
+        print(f"{PROG} estimate: warning: {warning}", file=sys.stderr)
 
 
 #: ``estimate`` options: argparse dest -> library option name.
@@ -336,7 +378,7 @@ def _apply_config(args: argparse.Namespace, path: str) -> None:
     if not isinstance(data, dict):
         raise InputError(f"{path}: expected a mapping of option names to values")
     actions = {a.dest: a for a in args.options_parser._actions if a.option_strings}
-    fixed = {"camera", "tracks", "images", "out", "config", "help", "method"}
+    fixed = {"camera", "tracks", "images", "out", "config", "help", "method", "plane", "target"}
     for key, value in data.items():
         dest = str(key).replace("-", "_")
         action = actions.get(dest)
@@ -362,3 +404,40 @@ def _config_value(path: str, key: str, action: argparse.Action, value: object) -
         choices = ", ".join(map(str, action.choices))
         raise InputError(f"{path}: {key}: expected one of {choices}, got {value!r}")
     return parsed
+
+
+def _auto_scene(args: argparse.Namespace, recording: Recording) -> SceneConfig:
+    """The scene of ``--plane auto``: the camera (``--camera``, else the recording's), the
+    plane of the target in the first image (:mod:`hvo_graph.frontend.target`)."""
+    from hvo_graph.frontend.target import parse_target, plane_from_target
+    from hvo_graph.io.calibration import load_calibration
+    from hvo_graph.io.config import SceneConfig, load_camera
+    from hvo_graph.io.images import as_gray_image
+
+    if args.target is None:
+        raise InputError("--plane auto: needs --target (the board seen in the first image)")
+    for flag in ("plane_distance", "plane_normal"):
+        if getattr(args, flag) is not None:
+            raise InputError(f"--{flag.replace('_', '-')}: contradicts --plane auto")
+    spec = parse_target(args.target)
+    pixel_sigma = None
+    if args.camera is None and recording.camera is None:
+        raise InputError(f"--camera: required, {args.images} carries no calibration")
+    if args.camera is None:
+        camera = recording.camera
+    else:
+        try:  # the project's camera YAML, whose plane section may be left out here
+            camera, _, pixel_sigma = load_camera(args.camera)
+        except InputError:  # another tool's calibration (or the YAML's own error, again)
+            camera = load_calibration(args.camera).camera
+    first = next(iter(recording.frames), None)
+    if first is None:
+        raise InputError(f"{args.images}: no frames")
+    image = as_gray_image(first, recording.frames.names[0], camera)
+    found = plane_from_target(image, camera, spec)
+    progress(f"plane from the {spec.kind}: d* = {found.plane.distance:.4f} m")
+    return SceneConfig(camera, found.plane, pixel_sigma)
+
+
+def _listed(normal: object) -> list[float] | None:
+    return None if normal is None else [float(x) for x in normal]  # type: ignore[union-attr]

@@ -32,8 +32,9 @@ from dataclasses import dataclass
 import numpy as np
 
 from hvo_graph.errors import InputError, as_integer, as_number
-from hvo_graph.frontend.velocity import flow_twist
+from hvo_graph.frontend.velocity import flow_twist, mid_interval_plane
 from hvo_graph.geometry.camera import CameraModel
+from hvo_graph.geometry.continuous import motion_after_twist
 from hvo_graph.geometry.decomposition import (
     decompose_homography,
     motion_from_homography_known_normal,
@@ -221,11 +222,14 @@ class MeasurementFrontEnd:
         self._reference: _Frame | None = None
         self._previous: _Frame | None = None
         self._normal: np.ndarray | None = None if plane.normal is None else plane.normal
+        if self.config.pose_solver == "ippe" and self._normal is None:
+            raise InputError("pose_solver 'ippe' needs the plane normal in the camera file")
         self._normal_candidates: list[list[np.ndarray]] = []
         #: frames in which each track id was rejected; ids at ``reject_after`` are excluded.
         self._rejections: dict[int, int] = {}
         self._excluded: set[int] = set()
         self._rejected_now = 0
+        self._last_twist = np.zeros(6)  # the latest measured [w; v] (predicts lost frames)
 
     @property
     def normal(self) -> np.ndarray | None:
@@ -246,9 +250,22 @@ class MeasurementFrontEnd:
         if self._reference is None:
             self._reference = _Frame(obs.index, obs.t, ids, m, np.eye(3), np.zeros(3))
             self._world_index = obs.index
-        R, T, pose = self._measure_pose(ids, m)
+        try:
+            R, T, pose = self._measure_pose(ids, m)
+        except InputError:  # points geometry refuses (degenerate, behind the camera): no pose
+            R, T, pose = None, None, None
+        prev = self._previous  # no pose: carry the last motion on at the last twist
+        if pose is None and self._normal is not None and prev is not None and prev.R is not None:
+            R, T = motion_after_twist(prev.R, prev.T, self._last_twist, obs.t - prev.t)
         frame = _Frame(obs.index, obs.t, ids, m, R, T)
-        velocity = self._measure_velocity(frame) if self._previous is not None else None
+        velocity = self._measure_velocity(frame) if prev is not None else None
+        self._last_twist = self._last_twist if velocity is None else np.asarray(velocity.twist)
+        limit = self.config.keyframe_min_points  # a new reference must see this many points
+        lost = len(np.intersect1d(self._reference.ids, ids)) < self.config.min_points
+        if pose is None and R is not None and lost and limit and len(ids) >= limit:
+            # Re-acquisition: a new reference at its predicted pose; the estimators re-place
+            # the plane at their own estimate of it (keyframe plane Jacobian).
+            self._reference = frame
         self._previous = frame
         rejected = self._rejected_now + len(obs.ids) - len(ids)
         return FrameMeasurement(obs.index, obs.t, pose, velocity, len(obs.ids), rejected)
@@ -287,8 +304,6 @@ class MeasurementFrontEnd:
             collinear(m_, COLLINEAR_SIGMAS * self._sigma) for m_ in (m_ref, m_cur)
         ):
             return None, None, None
-        if self.config.pose_solver == "ippe" and self._normal is None:
-            raise InputError("pose_solver 'ippe' needs the plane normal in the camera file")
         if self._normal is None:  # only while still on frame 0: estimate n* from parallax
             motion = self._homography_motion(m_ref, m_cur, None)
             if motion is None:
@@ -457,21 +472,12 @@ class MeasurementFrontEnd:
         if len(m0) < self.config.min_points or collinear(m0, COLLINEAR_SIGMAS * self._sigma):
             return None
         motions = [(f.R, f.T) for f in (prev, frame) if f.R is not None]
-        if not motions:
-            return None
-        # The plane in the camera frame at mid-interval: n(t) = R n*, d(t) = d* + n(t)^T T.
-        normals = [R @ self._normal for R, _ in motions]
-        distances = [
-            self.plane.distance + nt @ T for nt, (_, T) in zip(normals, motions, strict=True)
-        ]
-        n_mid = np.mean(normals, axis=0)
-        n_mid /= np.linalg.norm(n_mid)
-        d_mid = float(np.mean(distances))
-        if d_mid <= 0:
+        plane = mid_interval_plane(motions, self._normal, self.plane.distance)
+        if plane is None:
             return None
         limit = self.config.outlier_chi2 if len(m0) >= ROBUST_MIN_POINTS else None
         return flow_twist(
-            m0, m1, prev.t, frame.t, Plane(d_mid, n_mid), self._sigma, limit, self.config.min_points
+            m0, m1, prev.t, frame.t, plane, self._sigma, limit, self.config.min_points
         )
 
 

@@ -63,3 +63,19 @@ def flow_twist(
     J = -np.diag([1.0, 1.0, 1.0, d, d, d])  # [w_b; v_b] = -[w; d u]
     covariance = J @ cov_wu @ J.T
     return VelocityMeasurement(twist, 0.5 * (covariance + covariance.T), 0.5 * (t0 + t1), dt)
+
+
+def mid_interval_plane(
+    motions: list[tuple[np.ndarray, np.ndarray]], normal: np.ndarray, distance: float
+) -> Plane | None:
+    """The plane in the camera frame at mid-interval, from the motions (R, T) (world ->
+    camera) known at the interval's ends: the mean of n(t) = R n* (renormalized) and of
+    d(t) = d* + n(t)^T T. None when no motion is known or the plane would be behind.
+    """
+    if not motions:
+        return None
+    normals = [R @ normal for R, _ in motions]
+    distances = [distance + float(n @ T) for n, (_, T) in zip(normals, motions, strict=True)]
+    n_mid = np.mean(normals, axis=0)
+    d_mid = float(np.mean(distances))
+    return Plane(d_mid, n_mid / np.linalg.norm(n_mid)) if d_mid > 0 else None

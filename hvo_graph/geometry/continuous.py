@@ -386,3 +386,29 @@ __all__ = [
     "velocity_design_matrix",
     "velocity_known_normal",
 ]
+
+
+def motion_after_twist(
+    R: np.ndarray, T: np.ndarray, twist: np.ndarray, dt: float
+) -> tuple[np.ndarray, np.ndarray]:
+    """The motion (R, T) (world -> camera, X = R X_w + T) after ``dt`` seconds at a
+    constant body twist (contract sign, [w; v]): T_wc(t + dt) = T_wc(t) Exp(dt [w; v])
+    to first order in the translation.
+
+    Args:
+        R: (3, 3) rotation; T: (3,) translation, metres.
+        twist: (6,) body twist [w; v] (rad/s, m/s).
+        dt: seconds.
+    Returns:
+        (R', T'), (3, 3) and (3,).
+    """
+    R = as_matrix(R, "R", (3, 3))
+    T = as_vector(T, "T", 3)
+    xi = as_vector(twist, "twist", 6)
+    theta = xi[:3] * float(dt)
+    angle = float(np.linalg.norm(theta))
+    K = skew(theta / angle) if angle > 0 else np.zeros((3, 3))
+    step = np.eye(3) + np.sin(angle) * K + (1.0 - np.cos(angle)) * K @ K  # Rodrigues
+    R_wc, p_wc = R.T, -R.T @ T
+    R_next = (R_wc @ step).T
+    return R_next, -R_next @ (p_wc + R_wc @ (xi[3:] * float(dt)))

@@ -167,6 +167,24 @@ def load_scene(path: PathLike) -> SceneConfig:
         InputError: naming the file, line and key of the first problem.
         OSError: when the file cannot be read.
     """
+    camera, plane, pixel_sigma = _read_scene(path, plane_required=True)
+    assert plane is not None
+    return SceneConfig(camera=camera, plane=plane, pixel_sigma=pixel_sigma)
+
+
+def load_camera(path: PathLike) -> tuple[CameraModel, Plane | None, float | None]:
+    """Read the contract's camera YAML where the ``plane`` section may be left out (it is
+    about to be derived, e.g. by ``hvo-graph plane``); the same checks otherwise.
+
+    Returns:
+        The camera, the plane when the file gives one (else None), the pixel noise or None.
+    """
+    return _read_scene(path, plane_required=False)
+
+
+def _read_scene(
+    path: PathLike, *, plane_required: bool
+) -> tuple[CameraModel, Plane | None, float | None]:
     text = read_text(path)
     try:
         root = yaml.compose(text, Loader=yaml.SafeLoader)
@@ -179,7 +197,9 @@ def load_scene(path: PathLike) -> SceneConfig:
     if root is None:
         raise InputError(f"{path}:1: expected a mapping with keys 'camera' and 'plane', got none")
     top = r.mapping(root, "")
-    r.check_keys(top, root, "", _REQUIRED_SECTIONS, ("noise",))
+    required = _REQUIRED_SECTIONS if plane_required else ("camera",)
+    optional = ("noise",) if plane_required else ("plane", "noise")
+    r.check_keys(top, root, "", required, optional)
 
     sections: dict[str, dict[str, tuple[yaml.Node, yaml.Node]]] = {}
     for name, (knode, vnode) in top.items():
@@ -206,7 +226,20 @@ def load_scene(path: PathLike) -> SceneConfig:
         key = str(exc).split(":")[0].removeprefix("camera.")
         raise r.error(cam[key][1] if key in cam else top["camera"][0], str(exc)) from None
 
-    pl = sections["plane"]
+    plane = None
+    if "plane" in sections:
+        plane = _read_plane(r, sections["plane"])
+    pixel_sigma = None
+    noise = sections.get("noise", {})
+    if "pixel_sigma" in noise:
+        node = noise["pixel_sigma"][1]
+        pixel_sigma = r.number(node, "noise.pixel_sigma")
+        if pixel_sigma < 0:
+            raise r.error(node, f"noise.pixel_sigma: expected a number >= 0, got {pixel_sigma}")
+    return camera, plane, pixel_sigma
+
+
+def _read_plane(r: _Reader, pl: dict[str, tuple[yaml.Node, yaml.Node]]) -> Plane:
     distance = r.number(pl["distance"][1], "plane.distance")
     normal = None
     if "normal" in pl and not (
@@ -220,15 +253,7 @@ def load_scene(path: PathLike) -> SceneConfig:
         key = "distance" if str(exc).startswith("plane.distance") else "normal"
         node = pl[key][1]
         raise r.error(node, str(exc)) from None
-
-    pixel_sigma = None
-    noise = sections.get("noise", {})
-    if "pixel_sigma" in noise:
-        node = noise["pixel_sigma"][1]
-        pixel_sigma = r.number(node, "noise.pixel_sigma")
-        if pixel_sigma < 0:
-            raise r.error(node, f"noise.pixel_sigma: expected a number >= 0, got {pixel_sigma}")
-    return SceneConfig(camera=camera, plane=plane, pixel_sigma=pixel_sigma)
+    return plane
 
 
 def save_scene(path: PathLike, scene: SceneConfig) -> None:
