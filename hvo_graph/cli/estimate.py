@@ -231,6 +231,8 @@ def run(args: argparse.Namespace) -> int:
         _apply_config(args, args.config)
     if args.target is not None and args.plane != "auto":
         raise InputError("--target: only with --plane auto")
+    if args.plane == "auto" and args.target is None:
+        raise InputError("--plane auto: needs --target (the board seen in the first image)")
     recording = None
     if args.images is not None:
         recording = open_recording(args.images, fps=args.fps, topic=args.topic)
