@@ -81,6 +81,13 @@ class PoseMeasurement:
             frame's pixel noise (shared by every pose measured against the same
             reference); ``covariance - reference_covariance`` is the part due to this
             frame's own pixels. None when not known.
+        reference_jacobian: (6, 2N) d eta / d rho: how the pose error eta (right
+            perturbation) moves with the reference frame's pixel noise of the N points
+            ``reference_ids``, rho = e* / sigma ([u_1, v_1, u_2, ...], in pixel
+            standard deviations), so ``reference_covariance`` = J J^T. The same draw
+            enters every pose measured against that reference: an estimator can
+            follow it across frames. None when not known.
+        reference_ids: (N,) track ids of those reference points.
     """
 
     rotation: np.ndarray
@@ -91,6 +98,8 @@ class PoseMeasurement:
     reference_position: np.ndarray | None = None
     plane_jacobian: np.ndarray | None = None
     reference_covariance: np.ndarray | None = None
+    reference_jacobian: np.ndarray | None = None
+    reference_ids: np.ndarray | None = None
 
 
 @dataclass(frozen=True)

@@ -49,7 +49,7 @@ from hvo_graph.geometry.discrete import (
 )
 from hvo_graph.geometry.transfer import (
     keyframe_plane_jacobian,
-    pose_covariance_parts,
+    pose_noise_jacobians,
     pose_normal_equations,
     retract_motion,
     transfer_chi2,
@@ -332,7 +332,8 @@ class MeasurementFrontEnd:
         if refit:
             R, T, info = self._refine(R, T, m_ref, m_cur, plane)
         R_rc, p_rc = camera_pose_from_motion(R, T)
-        current, reference = pose_covariance_parts(R, T, m_ref, m_cur, plane, self._sigma)
+        H, G = pose_noise_jacobians(R, T, m_ref, m_cur, plane, self._sigma)
+        current, reference = self._sigma**2 * (H @ H.T), self._sigma**2 * (G @ G.T)
         keyframe: dict[str, np.ndarray] = {}
         if ref.index != self._world_index:
             # The plane in the keyframe comes from the keyframe's *measured* pose: say which
@@ -349,9 +350,11 @@ class MeasurementFrontEnd:
         pose = PoseMeasurement(
             R_rc,
             p_rc,
-            current + reference,
+            0.5 * (current + current.T + reference + reference.T),
             reference=ref.index,
-            reference_covariance=reference,
+            reference_covariance=0.5 * (reference + reference.T),
+            reference_jacobian=-self._sigma * G,
+            reference_ids=shared[keep],
             **keyframe,
         )
         # Motion world -> current: X = R (R_ref X_w + T_ref) + T.

@@ -167,12 +167,33 @@ def pose_covariance_parts(
     Returns:
         (C_cur, C_ref), each (6, 6) symmetric, tangent order [rot; trans].
     """
+    H, G = pose_noise_jacobians(R, T, m_ref, m_cur, plane, sigma)
+    current, reference = sigma**2 * (H @ H.T), sigma**2 * (G @ G.T)
+    return 0.5 * (current + current.T), 0.5 * (reference + reference.T)
+
+
+def pose_noise_jacobians(
+    R: np.ndarray,
+    T: np.ndarray,
+    m_ref: np.ndarray,
+    m_cur: np.ndarray,
+    plane: Plane,
+    sigma: float,
+) -> tuple[np.ndarray, np.ndarray]:
+    """How the fitted pose moves with each pixel's noise: delta = H e - G e*.
+
+    Arguments as :func:`linearize_transfer`; e (2N,) is the current and e* (2N,)
+    the reference frame's pixel noise, point by point ([u_1, v_1, u_2, ...]).
+
+    Returns:
+        (H, G), each (6, 2N), tangent order [rot; trans] (right perturbation):
+        d delta / d e = H and d delta / d e* = -G.
+    """
     lin = linearize_transfer(R, T, m_ref, m_cur, plane, sigma)
     info = np.sum(lin.JtW @ lin.J, axis=0)
     H = np.linalg.solve(info, np.concatenate(list(lin.JtW), axis=1))  # (6, 2N)
     G = np.linalg.solve(info, np.concatenate(list(lin.JtW @ lin.A), axis=1))
-    current, reference = sigma**2 * (H @ H.T), sigma**2 * (G @ G.T)
-    return 0.5 * (current + current.T), 0.5 * (reference + reference.T)
+    return H, G
 
 
 def transfer_chi2(
