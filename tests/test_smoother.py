@@ -326,9 +326,6 @@ def test_covariances_have_the_right_shape_and_are_positive_definite(solver, pape
         assert online.covariances is None
     else:
         assert_covariances_valid(online.covariances, 120)
-        # Smoothing can only add information: the final marginal is never larger.
-        gap = online.covariances[60] - smoothed.covariances[60]
-        assert np.linalg.eigvalsh(gap).min() > -1e-12
 
 
 def dense_marginals(smoother: FactorGraphSmoother, values: gtsam.Values) -> dict[int, np.ndarray]:
@@ -349,26 +346,43 @@ def dense_marginals(smoother: FactorGraphSmoother, values: gtsam.Values) -> dict
     }
 
 
-def test_batch_covariances_equal_the_dense_inverse_information(paper_truth):
+def test_batch_marginals_equal_the_dense_inverse_information(paper_truth):
+    """The back end's Bayesian marginals (the online covariances) are (J^T J)^-1."""
     frames = measure(paper_truth, np.random.default_rng(6))[:40]
     smoother = BatchSmoother(compute_covariance=True)
-    trajectory = smoother.run(frames)
+    smoother.run(frames)
     expected = dense_marginals(smoother, smoother.backend.values())
-    for i in range(40):
+    for i, (_, _, cov) in zip(smoother._indices, smoother.backend.final(smoother._indices)):
         np.testing.assert_allclose(
-            trajectory.covariances[i],
-            expected[i],
-            rtol=1e-6,
-            atol=1e-12 * np.abs(expected[i]).max(),
+            cov, expected[i], rtol=1e-6, atol=1e-12 * np.abs(expected[i]).max()
         )
-    # ISAM2 keeps linearization points within its relinearization threshold of the
-    # optimum, so its marginals agree to about a percent.
-    isam = FactorGraphSmoother(compute_covariance=True).run(frames)
-    np.testing.assert_allclose(
-        np.sqrt(np.diagonal(isam.covariances, axis1=1, axis2=2)),
-        np.sqrt(np.diagonal(trajectory.covariances, axis1=1, axis2=2)),
-        rtol=0.02,
-    )
+
+
+def test_the_recorded_chain_is_the_graph_s_information(paper_truth):
+    """The factor record's blocks (motion + fixed + measurements) add up to the information
+    of the batch graph at its optimum: every factor recorded once, in its place."""
+    frames = measure(paper_truth, np.random.default_rng(6))[:40]
+    smoother = BatchSmoother(compute_covariance=True)
+    smoother.run(frames)
+    values = smoother.backend.values()
+    system = smoother.record.system(values, smoother._indices, smoother._times)
+    diagonal, upper = system.information()
+    keys = [k for i in smoother._indices for k in (X(i), V(i))]
+    dense = np.zeros((6 * len(keys), 6 * len(keys)))
+    linear = smoother.backend.graph.linearize(values)
+    for f in range(linear.size()):
+        A, _ = linear.at(f).jacobian()
+        cols = np.concatenate(
+            [np.arange(6 * keys.index(k), 6 * keys.index(k) + 6) for k in linear.at(f).keys()]
+        )
+        dense[np.ix_(cols, cols)] += A.T @ A
+    for n in range(40):
+        block = dense[12 * n : 12 * n + 12, 12 * n : 12 * n + 12]
+        np.testing.assert_allclose(diagonal[n], block, rtol=1e-9, atol=1e-9 * np.abs(block).max())
+        if n + 1 < 40:
+            np.testing.assert_allclose(
+                upper[n], dense[12 * n : 12 * n + 12, 12 * n + 12 : 12 * n + 24], atol=1e-6
+            )
 
 
 def wnoa_sample(n: int, q: np.ndarray, rng: np.random.Generator) -> Truth:
@@ -388,27 +402,47 @@ def wnoa_sample(n: int, q: np.ndarray, rng: np.random.Generator) -> Truth:
     return Truth(np.arange(n) * dt, poses, twists, mid)
 
 
-@pytest.mark.parametrize("solver", ["isam2", "batch"])
-def test_normalized_estimation_error_squared_is_consistent(solver):
-    # When the data follow the smoother's own model, e^T P^-1 e (12 dof) averages ~12.
+def test_online_covariance_is_consistent_when_the_motion_follows_the_model():
+    # Data drawn from the smoother's own prior: the filtered (online) ISAM2 marginal is
+    # the error covariance, e^T P^-1 e (12 dof) averages ~12.
     sigma = np.sqrt(3e-3)
     q = np.full(6, sigma**2)
     nees = []
     for seed in range(3):
         rng = np.random.default_rng(100 + seed)
         truth = wnoa_sample(200, q, rng)
-        frames = measure(truth, rng)
-        smoother = FactorGraphSmoother(
-            solver=solver, compute_covariance=True, acceleration_sigma=sigma
-        )
-        estimate = smoother.run(frames)
+        smoother = FactorGraphSmoother(compute_covariance=True, acceleration_sigma=sigma)
+        smoother.run(measure(truth, rng))
+        online = smoother.online_trajectory()
         for k in range(1, 200):
+            T = gtsam.Pose3(gtsam.Rot3(online.rotations[k]), online.positions[k])
+            e = np.concatenate(
+                (T.localCoordinates(truth.poses[k]), truth.twists[k] - online.twists[k])
+            )
+            nees.append(e @ np.linalg.solve(online.covariances[k], e))
+    assert 9.0 < np.mean(nees) < 15.0
+
+
+@pytest.mark.parametrize("solver", ["isam2", "batch"])
+def test_smoothed_covariance_is_consistent_on_smooth_motion(solver, paper_truth):
+    # The paper's sinusoidal motion with independent pose noise: the smoothed error
+    # covariance (noise-induced, plus the bias the data show) matches the errors. The
+    # Bayesian marginal was 3-6x too large for the twist here (it expects a white-noise
+    # acceleration the motion never makes).
+    nees = []
+    for seed in range(4):
+        frames = measure(paper_truth, np.random.default_rng(200 + seed))
+        estimate = FactorGraphSmoother(solver=solver, compute_covariance=True).run(frames)
+        for k in range(30, len(frames)):
             T = gtsam.Pose3(gtsam.Rot3(estimate.rotations[k]), estimate.positions[k])
             e = np.concatenate(
-                (T.localCoordinates(truth.poses[k]), truth.twists[k] - estimate.twists[k])
+                (
+                    T.localCoordinates(paper_truth.poses[k]),
+                    paper_truth.twists[k] - estimate.twists[k],
+                )
             )
-            nees.append(e @ np.linalg.solve(estimate.covariances[k], e))
-    assert 9.0 < np.mean(nees) < 15.0
+            nees.append(e @ np.linalg.solve(estimate.covariances[k], e) / 12)
+    assert 0.7 < np.mean(nees) < 1.4
 
 
 def test_custom_factors_see_isam2_values_without_copying(paper_truth):

@@ -37,6 +37,7 @@ from collections.abc import Sequence
 
 import gtsam
 import numpy as np
+from gtsam.symbol_shorthand import X
 
 from hvo_graph.errors import InputError, as_number
 
@@ -357,3 +358,50 @@ def keyframe_between_factor(
         return e
 
     return gtsam.CustomFactor(noise, [keyframe_key, pose_key], error)
+
+
+def measurement_noise(
+    covariance: np.ndarray, robust: str | None, threshold: float
+) -> gtsam.noiseModel.Base:
+    """The noise model of a measurement factor: Gaussian with ``covariance`` (6, 6), under
+    a Huber or Cauchy loss with ``threshold`` on the whitened residual when ``robust``."""
+    gaussian = gtsam.noiseModel.Gaussian.Covariance(covariance)
+    if robust is None:
+        return gaussian
+    if robust == "huber":
+        loss = gtsam.noiseModel.mEstimator.Huber.Create(threshold)
+    else:
+        loss = gtsam.noiseModel.mEstimator.Cauchy.Create(threshold)
+    return gtsam.noiseModel.Robust.Create(loss, gaussian)
+
+
+def keyframe_pose_factor(
+    k: int,
+    ref: int,
+    measured: gtsam.Pose3,
+    noise: gtsam.noiseModel.Base,
+    plane_model: tuple[gtsam.Pose3, np.ndarray] | None,
+    reference_pose: gtsam.Pose3,
+    reference_in_graph: bool,
+) -> tuple[gtsam.NonlinearFactor, gtsam.Pose3]:
+    """The H_d factor of frame k measured against keyframe ``ref``, and frame k's pose value.
+
+    With the keyframe in the graph: :func:`keyframe_between_factor` (the plane re-placed at
+    the keyframe's estimate) when ``plane_model`` (assumed keyframe pose, plane Jacobian) is
+    given, else a ``BetweenFactorPose3``. Keyframe already out of a fixed-lag window: a
+    prior at its frozen estimate composed with the measurement (the keyframe's own
+    uncertainty is not propagated).
+    """
+    measured_here = (
+        measured
+        if plane_model is None
+        else replace_keyframe_plane(measured, *plane_model, reference_pose)
+    )
+    pose_guess = reference_pose.compose(measured_here)
+    if reference_in_graph and plane_model is not None:
+        factor = keyframe_between_factor(X(ref), X(k), measured, *plane_model, noise)
+    elif reference_in_graph:
+        factor = gtsam.BetweenFactorPose3(X(ref), X(k), measured, noise)
+    else:
+        factor = gtsam.PriorFactorPose3(X(k), pose_guess, noise)
+    return factor, pose_guess

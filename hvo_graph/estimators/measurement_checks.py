@@ -7,14 +7,14 @@ and the field; the smoother calls them all before it changes any state.
 from __future__ import annotations
 
 import math
-from collections.abc import Callable, Sequence
+from collections.abc import Callable, Container, Sequence
 
 import gtsam
 import numpy as np
 
 from hvo_graph.errors import InputError, as_covariance, as_integer, as_rotation
 from hvo_graph.estimators.factors import interval_weights
-from hvo_graph.types import PoseMeasurement, VelocityMeasurement
+from hvo_graph.types import FrameMeasurement, PoseMeasurement, VelocityMeasurement
 
 
 def checked_covariance(matrix: object, name: str) -> np.ndarray:
@@ -153,3 +153,54 @@ def poses_span(previous: int, previous_reference: int | None, reference: int) ->
     and an H_c twist there would count them twice.
     """
     return reference == previous or previous_reference == reference
+
+
+#: A checked frame: (k, t, pose, twist). pose: (measured Pose3, factor covariance,
+#: reference[, the reference's shared covariance]); twist: (z, covariance, node
+#: frame indices, node weights).
+CheckedFrame = tuple[int, float, tuple | None, tuple | None]
+
+
+def checked_frame(
+    frame: FrameMeasurement,
+    times: Sequence[float],
+    indices: Sequence[int],
+    in_graph: Callable[[int], bool],
+    lag: float,
+    *,
+    known: Container[int],
+    split_reference: bool,
+) -> CheckedFrame:
+    """Every check of a frame for the smoother, before it changes anything.
+
+    Args:
+        frame: the next frame.
+        times, indices: the frames so far (times, indices, in order).
+        in_graph: whether an earlier frame is still a variable of the graph.
+        lag: fixed-lag window (s), for the twist nodes.
+        known: the frame indices so far (a set or dict: a reference must be one).
+        split_reference: the pose factor carries the frame's own pixel noise only;
+            the reference's share comes fourth in the pose tuple.
+    Raises:
+        InputError: naming the frame and the field.
+    """
+    k, t = as_integer(frame.index, "frame.index", 0), float(frame.t)
+    if not math.isfinite(t):
+        raise InputError(f"frame {k}: t is not finite ({frame.t})")
+    pose_meas = None if frame.pose is None else checked_pose(frame.pose, k)
+    velocity = None if frame.velocity is None else checked_velocity(frame.velocity, k)
+    if pose_meas is not None and pose_meas[2] != 0 and pose_meas[2] not in known:
+        raise InputError(
+            f"frame {k}: pose.reference {pose_meas[2]} is not an earlier frame of this sequence"
+        )
+    twist_meas = None
+    if velocity is not None:
+        assert frame.velocity is not None
+        nodes = twist_nodes(k, t, frame.velocity, times, indices, in_graph, lag)
+        twist_meas = (*velocity, *nodes)
+    if pose_meas is not None and split_reference:
+        assert frame.pose is not None
+        reference = checked_reference_covariance(frame.pose, k)
+        if reference is not None:
+            pose_meas = (pose_meas[0], pose_meas[1] - reference, pose_meas[2], reference)
+    return k, t, pose_meas, twist_meas

@@ -22,6 +22,7 @@ from __future__ import annotations
 import math
 from collections.abc import Sequence
 
+import gtsam
 import numpy as np
 
 from hvo_graph.errors import InputError
@@ -86,3 +87,29 @@ def velocity_variance(q: np.ndarray, dt: float) -> np.ndarray:
 def bridge_variance(q: np.ndarray, dt: float) -> np.ndarray:
     """Variance of the trapezoidal position step given both end velocities: q dt^3 / 12."""
     return q * dt**3 / 12.0
+
+
+class MotionNoise:
+    """The smoother's motion-factor noise models over an interval dt, cached per dt.
+
+    Args:
+        sigma: (s_w, s_v) of :func:`acceleration_sigma`.
+    """
+
+    def __init__(self, sigma: tuple[float, float]) -> None:
+        #: diag(Q): white-noise-acceleration spectral densities, [rot x3; trans x3].
+        self.q = twist_spectral_density(sigma)
+        self._cache: dict[float, tuple[gtsam.noiseModel.Base, gtsam.noiseModel.Base]] = {}
+
+    def __call__(self, dt: float) -> tuple[gtsam.noiseModel.Base, gtsam.noiseModel.Base]:
+        """(motion, random walk) noise over dt: Q dt^3 / 12 (Brownian bridge) and Q dt."""
+        cached = self._cache.get(dt)
+        if cached is None:
+            if len(self._cache) > 64:  # irregular frame times: keep the cache small
+                self._cache.clear()
+            cached = (
+                gtsam.noiseModel.Diagonal.Sigmas(np.sqrt(bridge_variance(self.q, dt))),
+                gtsam.noiseModel.Diagonal.Sigmas(np.sqrt(velocity_variance(self.q, dt))),
+            )
+            self._cache[dt] = cached
+        return cached

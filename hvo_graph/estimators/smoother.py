@@ -5,16 +5,16 @@ T_wc (``gtsam.Pose3``), and V(k), the body twist [w; v] (6-vector, contract
 sign: d/dt T_wc = T_wc [w; v]^). Factors (docs/smoother.md has the equations
 and the reasons for every default):
 
-- world prior: X(k0) = I at the first frame k0 (W = the first camera frame),
-  standard deviation ``world_sigma``; a weak zero-mean prior on V(k0)
-  (``initial_twist_sigma``) so the first update is well posed;
+- anchor: X(k0) = I at the first frame k0 (W = the first camera frame). Every
+  H_d pose against frame k0 carries one shared draw of that frame's pixel noise
+  (``shared_reference_noise``): the prior's covariance is that noise, so X(k0)
+  estimates the shared offset, and poses are reported relative to it,
+  X_k = X(k0)^-1 X(k) (without the split: standard deviation ``world_sigma``).
+  A weak zero-mean prior on V(k0) (``initial_twist_sigma``);
 - pose measurement from the discrete homography H_d: with reference 0 (W) a
-  ``PriorFactorPose3`` on X(k); with a keyframe reference r a
-  ``BetweenFactorPose3`` X(r) -> X(k); noise ``Gaussian.Covariance`` of the
-  frame's own pixel noise (tangent [rot; trans], right perturbation). The
-  reference frame's pixel noise is one error shared by all its poses: no
-  number of frames averages it away, so it is added to the reported pose
-  marginals instead of to the factors (``shared_reference_noise``);
+  ``PriorFactorPose3`` on X(k); with a keyframe reference r a between factor
+  X(r) -> X(k); noise ``Gaussian.Covariance`` of the frame's own pixels
+  (tangent [rot; trans], right perturbation);
 - twist measurement from the continuous homography H_c over [t - dt/2,
   t + dt/2]: :func:`~hvo_graph.estimators.factors.mean_velocity_factor` on the
   time average of the piecewise-linear twist ((V(k-1) + V(k)) / 2 for the usual
@@ -53,29 +53,19 @@ import numpy as np
 from gtsam.symbol_shorthand import V, X
 
 from hvo_graph.errors import InputError, as_integer, as_number
+from hvo_graph.estimators import measurement_checks
 from hvo_graph.estimators.base import Estimator
 from hvo_graph.estimators.choices import ROBUST_LOSSES, SOLVERS, VELOCITY_FACTOR_POLICIES
+from hvo_graph.estimators.factor_record import FactorRecord
 from hvo_graph.estimators.factors import (
     _mean_velocity_factor,
-    keyframe_between_factor,
+    keyframe_pose_factor,
+    measurement_noise,
     motion_factor,
-    replace_keyframe_plane,
 )
-from hvo_graph.estimators.measurement_checks import (
-    checked_pose,
-    checked_reference_covariance,
-    checked_velocity,
-    keyframe_model,
-    poses_span,
-    twist_nodes,
-)
+from hvo_graph.estimators.measurement_checks import CheckedFrame, checked_frame, poses_span
 from hvo_graph.estimators.noise_estimation import ProcessNoiseSchedule
-from hvo_graph.estimators.process_noise import (
-    DEFAULT_ACCELERATION_SIGMA,
-    bridge_variance,
-    twist_spectral_density,
-    velocity_variance,
-)
+from hvo_graph.estimators.process_noise import DEFAULT_ACCELERATION_SIGMA, MotionNoise
 from hvo_graph.estimators.process_noise import acceleration_sigma as check_acceleration_sigma
 from hvo_graph.estimators.solvers import (
     MARGINALIZATION_BLOCKS,
@@ -83,12 +73,7 @@ from hvo_graph.estimators.solvers import (
     levenberg_marquardt,
     make_backend,
 )
-from hvo_graph.types import (
-    FrameMeasurement,
-    PoseMeasurement,
-    StateEstimate,
-    Trajectory,
-)
+from hvo_graph.types import FrameMeasurement, PoseMeasurement, StateEstimate, Trajectory
 
 __all__ = [
     "DEFAULT_ACCELERATION_SIGMA",
@@ -114,6 +99,10 @@ DEFAULT_ROBUST_THRESHOLD: float = math.sqrt(12.591587243743977)
 #: Standard deviation (rad, m) of the prior X(k0) = I that defines the world frame.
 DEFAULT_WORLD_SIGMA: float = 1e-6
 
+#: Standard deviation (rad, m) of the prior X(k0) = I until the first pose measurement
+#: says how well the reference frame is known (``shared_reference_noise``).
+ANCHOR_START_SIGMA: float = 1.0
+
 #: Standard deviation (rad/s, m/s) of the zero-mean prior on the first twist V(k0).
 DEFAULT_INITIAL_TWIST_SIGMA: float = 10.0
 
@@ -128,9 +117,6 @@ DEFAULT_RELINEARIZE_THRESHOLD: float = 0.05
 DEFAULT_RELINEARIZE_SKIP: int = 10
 
 _ZERO6 = np.zeros(6)
-
-#: A checked twist measurement: (z, covariance, node frame indices, node weights).
-_TwistMeasurement = tuple[np.ndarray, np.ndarray, list[int], list[float]]
 
 
 class FactorGraphSmoother(Estimator):
@@ -151,8 +137,9 @@ class FactorGraphSmoother(Estimator):
         shared_reference_noise: True (default): an H_d factor carries only its own
             frame's pixel noise (``covariance - reference_covariance``); the
             reference frame's share, one offset common to every pose measured
-            against it, cannot be averaged away and is added to the reported pose
-            marginals instead. False: the full covariance in every factor.
+            against frame k0, is estimated as X(k0) (module docstring); a
+            keyframe's share is added to the reported pose covariance. False: the
+            full covariance in every factor, X(k0) = I.
         velocity_factors: "gaps" (default): an H_c twist factor only where no two
             H_d poses against the same reference already span its interval (the
             flow is made of the same pixels as those two poses, which would count
@@ -160,10 +147,12 @@ class FactorGraphSmoother(Estimator):
         robust: None, "huber" or "cauchy": robust loss on the measurement factors.
         robust_threshold: M-estimator threshold on the whitened residual norm;
             default :data:`DEFAULT_ROBUST_THRESHOLD`.
-        compute_covariance: also return the 12x12 marginal covariance of
-            [pose tangent; twist] per frame (online: the latest frame after its
-            update, from ISAM2's Bayes tree; smoothed: every frame at the end).
-            Batch online estimates have none.
+        compute_covariance: also return the 12x12 covariance of [pose tangent;
+            twist] per frame. Smoothed (:meth:`trajectory`): the covariance of the
+            errors over the pixel noise, own and shared, plus the motion model's
+            bias measured from the data (:mod:`.error_covariance`). Online: the
+            ISAM2 marginal after the frame's update (conservative: it counts the
+            anchor's full uncertainty); batch online estimates have none.
         initial_twist_sigma: standard deviation of the zero-mean prior on the first twist.
         world_sigma: standard deviation of the prior X(k0) = I.
         relinearize_threshold: ISAM2 relinearizes a variable whose delta exceeds this.
@@ -223,6 +212,11 @@ class FactorGraphSmoother(Estimator):
             else as_number(robust_threshold, "robust_threshold", above=0.0)
         )
         self.compute_covariance = bool(compute_covariance)
+        #: The factors by role, for the smoothed error covariance (with covariances).
+        self.record: FactorRecord | None = FactorRecord() if self.compute_covariance else None
+        self._anchored = False  # X(k0) has its prior from the reference frame's noise
+        self._anchor_start = gtsam.noiseModel.Isotropic.Sigma(6, ANCHOR_START_SIGMA)
+        self._world_sigma = float(world_sigma)
         self._world_noise = gtsam.noiseModel.Isotropic.Sigma(
             6, as_number(world_sigma, "world_sigma", above=0.0)
         )
@@ -261,8 +255,7 @@ class FactorGraphSmoother(Estimator):
         #: (s_w, s_v) of the motion factors added from now on.
         self.acceleration_sigma = check_acceleration_sigma(value)
         #: diag(Q): white-noise-acceleration spectral densities, [rot x3; trans x3].
-        self._q = twist_spectral_density(self.acceleration_sigma)
-        self._noise_cache: dict[float, tuple[gtsam.noiseModel.Base, gtsam.noiseModel.Base]] = {}
+        self._process_noise = MotionNoise(self.acceleration_sigma)
 
     def run(self, frames: Iterable[FrameMeasurement]) -> Trajectory:
         """Fuse a whole sequence; "auto" process noise is fitted on all of it first."""
@@ -272,57 +265,19 @@ class FactorGraphSmoother(Estimator):
             self._set_acceleration_sigma(self.process_noise.sigma)
         return super().run(frames)
 
-    def _process_noise(self, dt: float) -> tuple[gtsam.noiseModel.Base, gtsam.noiseModel.Base]:
-        """(motion, random walk) noise over dt: Q dt^3 / 12 (Brownian bridge) and Q dt."""
-        cached = self._noise_cache.get(dt)
-        if cached is None:
-            if len(self._noise_cache) > 64:  # irregular frame times: keep the cache small
-                self._noise_cache.clear()
-            cached = (
-                gtsam.noiseModel.Diagonal.Sigmas(np.sqrt(bridge_variance(self._q, dt))),
-                gtsam.noiseModel.Diagonal.Sigmas(np.sqrt(velocity_variance(self._q, dt))),
-            )
-            self._noise_cache[dt] = cached
-        return cached
-
-    def _measurement_noise(self, covariance: np.ndarray) -> gtsam.noiseModel.Base:
-        gaussian = gtsam.noiseModel.Gaussian.Covariance(covariance)
-        if self.robust is None:
-            return gaussian
-        if self.robust == "huber":
-            loss = gtsam.noiseModel.mEstimator.Huber.Create(self.robust_threshold)
-        else:
-            loss = gtsam.noiseModel.mEstimator.Cauchy.Create(self.robust_threshold)
-        return gtsam.noiseModel.Robust.Create(loss, gaussian)
-
     # -- per frame --------------------------------------------------------------------------
 
-    def _checked_frame(
-        self, frame: FrameMeasurement
-    ) -> tuple[int, float, tuple[gtsam.Pose3, np.ndarray, int] | None, _TwistMeasurement | None]:
+    def _checked_frame(self, frame: FrameMeasurement) -> CheckedFrame:
         """(k, t, checked pose, checked twist with its nodes): every check before any change."""
-        k, t = as_integer(frame.index, "frame.index", 0), float(frame.t)
-        if not math.isfinite(t):
-            raise InputError(f"frame {k}: t is not finite ({frame.t})")
-        pose_meas = None if frame.pose is None else checked_pose(frame.pose, k)
-        velocity = None if frame.velocity is None else checked_velocity(frame.velocity, k)
-        if pose_meas is not None and pose_meas[2] != 0 and pose_meas[2] not in self._position:
-            raise InputError(
-                f"frame {k}: pose.reference {pose_meas[2]} is not an earlier frame of this sequence"
-            )
-        twist_meas = None
-        if velocity is not None:
-            assert frame.velocity is not None
-            nodes = twist_nodes(
-                k, t, frame.velocity, self._times, self._indices, self.backend.in_graph, self.lag
-            )
-            twist_meas = (*velocity, *nodes)
-        if pose_meas is not None and self.shared_reference_noise:
-            assert frame.pose is not None
-            reference = checked_reference_covariance(frame.pose, k)
-            if reference is not None:
-                pose_meas = (pose_meas[0], pose_meas[1] - reference, pose_meas[2], reference)
-        return k, t, pose_meas, twist_meas
+        return checked_frame(
+            frame,
+            self._times,
+            self._indices,
+            self.backend.in_graph,
+            self.lag,
+            known=self._position,
+            split_reference=self.shared_reference_noise,
+        )
 
     def _add_pose_factor(
         self,
@@ -334,31 +289,47 @@ class FactorGraphSmoother(Estimator):
     ) -> gtsam.Pose3:
         """The H_d factor of frame k (prior, between, or keyframe between); its pose value."""
         measured, cov, ref = pose_meas[:3]
-        noise = self._measurement_noise(cov)
+        noise = measurement_noise(cov, self.robust, self.robust_threshold)
         if ref == 0:
-            graph.add(gtsam.PriorFactorPose3(X(k), measured, noise))
+            factor = gtsam.PriorFactorPose3(X(k), measured, noise)
+            graph.add(factor)
+            shared = pose_meas[3] if len(pose_meas) > 3 else None
+            if shared is not None and not self._anchored:
+                self._anchor(graph, shared)
+            if self.record is not None:
+                if shared is not None and pose.reference_jacobian is not None:
+                    self.record.add_shared(
+                        factor, cov, pose.reference_jacobian, np.asarray(pose.reference_ids)
+                    )
+                else:
+                    self.record.measurement.append(factor)
             return measured
-        plane_model = keyframe_model(pose, k)
-        reference = self.backend.current_pose(ref)
-        measured_here = (
-            measured
-            if plane_model is None
-            else replace_keyframe_plane(measured, *plane_model, reference)
+        factor, pose_guess = keyframe_pose_factor(
+            k,
+            ref,
+            measured,
+            noise,
+            measurement_checks.keyframe_model(pose, k),
+            self.backend.current_pose(ref),
+            self.backend.in_graph(ref),
         )
-        pose_guess = reference.compose(measured_here)
-        if self.backend.in_graph(ref) and plane_model is not None:
-            graph.add(
-                keyframe_between_factor(
-                    X(ref), X(k), measured, plane_model[0], plane_model[1], noise
-                )
-            )
-        elif self.backend.in_graph(ref):
-            graph.add(gtsam.BetweenFactorPose3(X(ref), X(k), measured, noise))
-        else:
-            # fixed-lag, keyframe already out of the window: its frozen estimate
-            # becomes the reference (its own uncertainty is not propagated).
-            graph.add(gtsam.PriorFactorPose3(X(k), pose_guess, noise))
+        self._add(graph, factor, "measurement")
         return pose_guess
+
+    def _anchor(self, graph: gtsam.NonlinearFactorGraph, reference: np.ndarray) -> None:
+        """X(k0) = I with the reference frame's noise: the H_d poses all carry its one
+        draw, so the graph estimates that offset as X(k0) and the poses are reported
+        relative to it (:meth:`_relative`) instead of bending the first motion."""
+        covariance = reference + self._world_sigma**2 * np.eye(6)
+        noise = gtsam.noiseModel.Gaussian.Covariance(covariance)
+        self._add(graph, gtsam.PriorFactorPose3(X(self._indices[0]), gtsam.Pose3(), noise), "fixed")
+        self._anchored = True
+
+    def _add(self, graph: gtsam.NonlinearFactorGraph, factor: object, role: str) -> None:
+        """Add a factor to the update's graph and, with covariances, to the record."""
+        graph.add(factor)
+        if self.record is not None:
+            getattr(self.record, role).append(factor)
 
     def _update(self, frame: FrameMeasurement) -> StateEstimate:
         k, t, pose_meas, twist_meas = self._checked_frame(frame)
@@ -373,19 +344,26 @@ class FactorGraphSmoother(Estimator):
         first = not self._indices
         dt = 0.0 if first else t - self._times[-1]
         if first:
-            graph.add(gtsam.PriorFactorPose3(X(k), gtsam.Pose3(), self._world_noise))
-            graph.add(gtsam.PriorFactorVector(V(k), _ZERO6, self._twist_prior_noise))
+            world = self._anchor_start if self.shared_reference_noise else self._world_noise
+            self._add(graph, gtsam.PriorFactorPose3(X(k), gtsam.Pose3(), world), "fixed")
+            self._add(
+                graph, gtsam.PriorFactorVector(V(k), _ZERO6, self._twist_prior_noise), "fixed"
+            )
         else:
             previous = self._indices[-1]
             motion_noise, walk_noise = self._process_noise(dt)
-            graph.add(motion_factor(X(previous), X(k), V(previous), V(k), dt, motion_noise))
-            graph.add(gtsam.BetweenFactorVector(V(previous), V(k), _ZERO6, walk_noise))
+            motion = motion_factor(X(previous), X(k), V(previous), V(k), dt, motion_noise)
+            self._add(graph, motion, "motion")
+            walk = gtsam.BetweenFactorVector(V(previous), V(k), _ZERO6, walk_noise)
+            self._add(graph, walk, "motion")
         self._position[k] = len(self._indices)
         self._indices.append(k)
         self._times.append(t)
         if pose_meas is not None:
             self._pose_reference[k] = pose_meas[2]
         shared = pose_meas[3] if pose_meas is not None and len(pose_meas) > 3 else None
+        if shared is not None and pose_meas is not None and pose_meas[2] == 0:
+            shared = np.zeros((6, 6))  # in the graph: the anchor X(k0) carries it
         if shared is None:  # no new pose: the latest one's reference noise still applies
             shared = self._reference_cov[-1] if self._reference_cov else np.zeros((6, 6))
         self._reference_cov.append(shared)
@@ -409,8 +387,9 @@ class FactorGraphSmoother(Estimator):
         if twist_meas is not None:
             self.velocity_factor_counts["used"] += 1
             z, cov, indices, weights = twist_meas
-            noise = self._measurement_noise(cov)
-            graph.add(_mean_velocity_factor([V(i) for i in indices], weights, z, noise))
+            noise = measurement_noise(cov, self.robust, self.robust_threshold)
+            factor = _mean_velocity_factor([V(i) for i in indices], weights, z, noise)
+            self._add(graph, factor, "measurement")
 
         values = gtsam.Values()
         values.insert(X(k), pose_guess)
@@ -419,6 +398,7 @@ class FactorGraphSmoother(Estimator):
         if covariance is not None:
             covariance = self._with_reference_noise(len(self._indices) - 1, covariance)
         self._pose, self._twist = pose, twist
+        pose = self._relative(pose, self.backend.current_pose(self._indices[0]))
         return StateEstimate(
             index=k,
             t=t,
@@ -437,6 +417,10 @@ class FactorGraphSmoother(Estimator):
         if nodes != [previous, k]:
             return False
         return poses_span(previous, self._pose_reference.get(previous), pose_meas[2])
+
+    def _relative(self, pose: gtsam.Pose3, anchor: gtsam.Pose3) -> gtsam.Pose3:
+        """The pose in W: X_k = Y_0^-1 Y_k, with Y the graph's (anchored) poses."""
+        return anchor.between(pose) if self._anchored else pose
 
     def _with_reference_noise(self, position: int, covariance: np.ndarray) -> np.ndarray:
         """The 12x12 marginal plus the shared reference noise the factors left out."""
@@ -457,13 +441,27 @@ class FactorGraphSmoother(Estimator):
         covariances = np.empty((n, 12, 12)) if self.compute_covariance else None
         if n == 0:
             return Trajectory(np.empty(0), rotations, positions, twists, covariances)
-        for i, (pose, twist, cov) in enumerate(self.backend.final(self._indices)):
-            rotations[i] = pose.rotation().matrix()
-            positions[i] = pose.translation()
+        # The back end's marginals are not the smoothed covariance (error_covariance).
+        compute, self.backend.compute_covariance = self.backend.compute_covariance, False
+        try:
+            finals = [
+                (pose, np.asarray(twist)) for pose, twist, _ in self.backend.final(self._indices)
+            ]
+        finally:
+            self.backend.compute_covariance = compute
+        anchor = finals[0][0]
+        for i, (pose, twist) in enumerate(finals):
+            relative = self._relative(pose, anchor)
+            rotations[i] = relative.rotation().matrix()
+            positions[i] = relative.translation()
             twists[i] = twist
-            if covariances is not None:
-                assert cov is not None
-                covariances[i] = self._with_reference_noise(i, cov)
+        if covariances is not None:
+            assert self.record is not None
+            smoothed = self.record.covariances(
+                finals, self._indices, self._times, anchored=self._anchored
+            )
+            smoothed[:, :6, :6] += self._world_sigma**2 * np.eye(6)
+            covariances[:] = [self._with_reference_noise(i, c) for i, c in enumerate(smoothed)]
         return Trajectory(
             t=np.array(self._times),
             rotations=rotations,

@@ -1,0 +1,293 @@
+"""How far the smoothed states are from the truth: the covariance of the errors.
+
+A Bayesian marginal (the inverse information) is the error covariance only
+when the motion really is the model's white-noise acceleration. Real motions
+(and the simulated ones) are smooth: the marginal then counts a random twist
+wander the motion never makes, and was 2-5x too large for the twist. Instead,
+at the estimate x^ the Gauss-Newton step is linear in the measurement errors
+eta, x^ - x = P A^T W eta with P = Lambda^-1, so over the measurement noise
+
+    Cov(x^ - x) = P A^T W Cov(eta) W A P
+                = P M P                       (each frame's own pixels, independent)
+                + (P Y)(P Y)^T                (the reference frame's pixels, shared)
+
+with M the information of the measurement factors and Y = A^T W d eta / d rho
+the response to the reference pixel noise rho (unit variance). What the
+motion model leaves out (a smoothed twist lags a fast change) is added from
+the data: the step d = Lambda_hi^-1 A^T W r (1 - 1/c) towards a c-times
+weaker motion model, whose square, averaged over a short window and less
+(a margin times) the noise it carries, estimates the twist's squared bias.
+The anchor (below) is an extrapolation of the motion model to the first
+frame: its error gets the model's own spread, P - P M P, as well.
+
+The smoother's graph is a chain: per frame the 12-vector [pose tangent; twist],
+motion factors between consecutive frames, measurement factors on one frame
+(or two consecutive ones). Lambda is block tridiagonal and every quantity
+comes from O(K) block recursions (Rybicki-Hummer / Thomas), never the dense
+inverse; :func:`dense_error_covariances` is the same computation with dense
+matrices, for tests.
+
+With the smoother's anchor (the first pose is estimated, and every pose is
+reported relative to it: X_k = Y_0^-1 Y_k), the reported error is
+r_k = dY_k - Ad(Y_k^-1 Y_0) dY_0, and its covariance needs the cross terms
+with frame 0 (also recursions).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+#: Per frame: pose tangent (6) and twist (6).
+STATE = 12
+
+#: The motion model the bias is measured against is this many times weaker.
+BIAS_MODEL_SCALE: float = 100.0
+
+
+#: A bias counts only beyond this many times the probe's own noise: the squared probe
+#: averaged over a window still scatters, and keeping every positive excess made the
+#: twist covariance 20-35 % too large where the motion model has no bias.
+BIAS_NOISE_MARGIN: float = 1.5
+
+#: Half-width of the window the squared bias is averaged over, seconds.
+BIAS_WINDOW_SECONDS: float = 0.5
+
+
+@dataclass(frozen=True)
+class ChainSystem:
+    """The smoother's linearized system at its estimate, split by where it comes from.
+
+    K frames, each state [pose tangent (6); twist (6)], right perturbation.
+
+    Attributes:
+        motion_diagonal: (K, 12, 12) information of the motion factors on each frame.
+        motion_upper: (K-1, 12, 12) their block between frames k and k+1.
+        fixed: (K, 12, 12) information of priors whose error is not random (the
+            world anchor, the weak first-twist prior).
+        measurement: (K, 12, 12) information of the measurement factors (each
+            frame's own noise) on each frame.
+        measurement_upper: (K-1, 12, 12) their blocks between frames k and k+1 (twist
+            factors across a frame interval; in Lambda, left out of the noise: the
+            few such factors are treated as if their frames' noise were separate).
+        shared: (K, 12, m) A^T W d eta / d rho: how the measurement factors pull
+            each frame's state per unit of the m shared noise sources rho.
+        gradient: (K, 12) A^T W r of the measurement factors at the estimate.
+        times: (K,) frame times (seconds).
+    """
+
+    motion_diagonal: np.ndarray
+    motion_upper: np.ndarray
+    fixed: np.ndarray
+    measurement: np.ndarray
+    measurement_upper: np.ndarray
+    shared: np.ndarray
+    gradient: np.ndarray
+    times: np.ndarray
+
+    def information(self, motion_scale: float = 1.0) -> tuple[np.ndarray, np.ndarray]:
+        """(diagonal, upper) blocks of Lambda, the motion model's information scaled."""
+        diagonal = self.fixed + self.measurement + motion_scale * self.motion_diagonal
+        return diagonal, self.measurement_upper + motion_scale * self.motion_upper
+
+
+def _symmetric(c: np.ndarray) -> np.ndarray:
+    return 0.5 * (c + np.swapaxes(c, -1, -2))
+
+
+@dataclass(frozen=True)
+class _Chain:
+    """Recursions of a block-tridiagonal Lambda: P_kk, and P_kj = A_k P_k+1,j (j > k),
+    P_kj = B_k P_k-1,j (j < k)."""
+
+    P: np.ndarray  # (K, n, n) diagonal blocks of Lambda^-1
+    A: np.ndarray  # (K-1, n, n)
+    B: np.ndarray  # (K, n, n); B[0] unused
+    forward: np.ndarray  # (K, n, n) forward Schur complements
+
+
+def _chain(diagonal: np.ndarray, upper: np.ndarray) -> _Chain:
+    K, n = len(diagonal), diagonal.shape[1]
+    forward = np.empty_like(diagonal)
+    backward = np.empty_like(diagonal)
+    forward[0] = diagonal[0]
+    for k in range(1, K):
+        forward[k] = diagonal[k] - upper[k - 1].T @ np.linalg.solve(forward[k - 1], upper[k - 1])
+    backward[K - 1] = diagonal[K - 1]
+    for k in range(K - 2, -1, -1):
+        backward[k] = diagonal[k] - upper[k] @ np.linalg.solve(backward[k + 1], upper[k].T)
+    P = _symmetric(np.linalg.inv(forward + backward - diagonal))
+    A = -np.linalg.solve(forward[:-1], upper) if K > 1 else np.empty((0, n, n))
+    B = np.zeros_like(diagonal)
+    if K > 1:
+        B[1:] = -np.linalg.solve(backward[1:], np.swapaxes(upper, 1, 2))
+    return _Chain(P, A, B, forward)
+
+
+def _solve(chain: _Chain, upper: np.ndarray, rhs: np.ndarray) -> np.ndarray:
+    """Lambda^-1 rhs for rhs (K, n, m) (block Thomas with the forward complements)."""
+    K = len(rhs)
+    y = np.empty_like(rhs)
+    y[0] = rhs[0]
+    for k in range(1, K):
+        y[k] = rhs[k] - upper[k - 1].T @ np.linalg.solve(chain.forward[k - 1], y[k - 1])
+    x = np.empty_like(rhs)
+    x[K - 1] = np.linalg.solve(chain.forward[K - 1], y[K - 1])
+    for k in range(K - 2, -1, -1):
+        x[k] = np.linalg.solve(chain.forward[k], y[k] - upper[k] @ x[k + 1])
+    return x
+
+
+def _noise_induced(chain: _Chain, M: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Diagonal blocks N_kk of P M P (M block diagonal) and the cross blocks N_0k."""
+    P, A, B = chain.P, chain.A, chain.B
+    K = len(P)
+    Q = P @ M @ P
+    after = np.empty_like(Q)  # sum over j >= k of P_kj M_j P_jk
+    after[K - 1] = Q[K - 1]
+    for k in range(K - 2, -1, -1):
+        after[k] = Q[k] + A[k] @ after[k + 1] @ A[k].T
+    before = np.empty_like(Q)  # sum over j <= k
+    before[0] = Q[0]
+    for k in range(1, K):
+        before[k] = Q[k] + B[k] @ before[k - 1] @ B[k].T
+    N = _symmetric(after + before - Q)
+    # N_0k = sum_j P_0j M_j P_jk with P_0j = G_j P_jj, G_j = A_0 ... A_j-1.
+    G = np.empty_like(Q)
+    G[0] = np.eye(P.shape[1])
+    for k in range(1, K):
+        G[k] = G[k - 1] @ A[k - 1]
+    PM = P @ M
+    reach = np.empty_like(Q)  # sum over j <= k of G_j P_jj M_j A_j ... A_k-1
+    reach[0] = PM[0]
+    for k in range(1, K):
+        reach[k] = reach[k - 1] @ A[k - 1] + G[k] @ PM[k]
+    beyond = np.zeros_like(Q)  # sum over j > k of G_j Q_j (A_k ... A_j-1)^T
+    for k in range(K - 2, -1, -1):
+        beyond[k] = (G[k + 1] @ Q[k + 1] + beyond[k + 1]) @ A[k].T
+    return N, reach @ P + beyond
+
+
+def _cross_noise(a: _Chain, b: _Chain, M: np.ndarray) -> np.ndarray:
+    """Diagonal blocks of P_a M P_b (two chains with the same sparsity, M block diagonal)."""
+    K = len(M)
+    Q = a.P @ M @ b.P
+    after = np.empty_like(Q)
+    after[K - 1] = Q[K - 1]
+    for k in range(K - 2, -1, -1):
+        after[k] = Q[k] + a.A[k] @ after[k + 1] @ b.A[k].T
+    before = np.empty_like(Q)
+    before[0] = Q[0]
+    for k in range(1, K):
+        before[k] = Q[k] + a.B[k] @ before[k - 1] @ b.B[k].T
+    return after + before - Q
+
+
+def _relative(N: np.ndarray, N0: np.ndarray, adjoint: np.ndarray | None) -> np.ndarray:
+    """Covariance of [dY_k - Ad_k dY_0 (pose); dV_k] from Cov(d_k), Cov(d_0, d_k)."""
+    if adjoint is None:
+        return N
+    T = np.zeros((len(N), STATE, STATE))  # d_rel = d_k - T_k d_0
+    T[:, :6, :6] = adjoint
+    cross = T @ N0  # Cov(T d_0, d_k)
+    out = N - cross - np.swapaxes(cross, 1, 2) + T @ N[0] @ np.swapaxes(T, 1, 2)
+    return _symmetric(out)
+
+
+def _window_mean(values: np.ndarray, times: np.ndarray, half_width: float) -> np.ndarray:
+    """Mean of values (K, ...) over the frames within +-half_width seconds of each frame."""
+    flat = values.reshape(len(values), -1)
+    cumulative = np.vstack((np.zeros((1, flat.shape[1])), np.cumsum(flat, axis=0)))
+    lo = np.searchsorted(times, times - half_width, side="left")
+    hi = np.searchsorted(times, times + half_width, side="right")
+    mean = (cumulative[hi] - cumulative[lo]) / (hi - lo)[:, None]
+    return mean.reshape(values.shape)
+
+
+def _psd_part(c: np.ndarray) -> np.ndarray:
+    w, v = np.linalg.eigh(_symmetric(c))
+    return np.einsum("kij,kj,klj->kil", v, np.clip(w, 0.0, None), v)
+
+
+def error_covariances(
+    system: ChainSystem,
+    *,
+    anchor_adjoint: np.ndarray | None = None,
+    bias_scale: float | None = BIAS_MODEL_SCALE,
+    bias_window: float = BIAS_WINDOW_SECONDS,
+) -> np.ndarray:
+    """(K, 12, 12) covariance of each frame's error [pose tangent; twist] (module docstring).
+
+    Args:
+        system: the linearized chain.
+        anchor_adjoint: (K, 6, 6) Ad(Y_k^-1 Y_0) when poses are reported relative to
+            frame 0's (X_k = Y_0^-1 Y_k); None: as estimated.
+        bias_scale: c, how much weaker the motion model of the bias probe is; None:
+            no bias term (the noise-induced covariance alone).
+        bias_window: half-width (s) of the window the squared bias is averaged over.
+    """
+    diagonal, upper = system.information()
+    chain = _chain(diagonal, upper)
+    N, N0 = _noise_induced(chain, system.measurement)
+    shared = _solve(chain, upper, system.shared)  # (K, 12, m)
+    if anchor_adjoint is not None:
+        shared = shared.copy()
+        shared[:, :6] -= anchor_adjoint @ shared[0, :6]
+    covariance = _relative(N, N0, anchor_adjoint) + shared @ np.swapaxes(shared, 1, 2)
+    if anchor_adjoint is not None:
+        # The anchor Y_0 is where the motion model extrapolates the first poses to: its
+        # error is also the model's, the prior-induced spread P - P M P of the marginal.
+        spread = (chain.P[0] - N[0])[:6, :6]
+        covariance[:, :6, :6] += anchor_adjoint @ spread @ np.swapaxes(anchor_adjoint, 1, 2)
+    if bias_scale is None:
+        return _symmetric(covariance)
+
+    # The bias probe: the step d to a c-times weaker motion model (twist part; the
+    # pose's bias is its integral, small beside the pose noise), less its noise,
+    # Cov = (P_hi - P) M (P_hi - P) = N_hi + N - X - X^T with X = P_hi M P.
+    diagonal_hi, upper_hi = system.information(1.0 / bias_scale)
+    chain_hi = _chain(diagonal_hi, upper_hi)
+    step = _solve(chain_hi, upper_hi, (1.0 - 1.0 / bias_scale) * system.gradient[..., None])
+    twist_step = step[:, 6:, 0]
+    N_hi, _ = _noise_induced(chain_hi, system.measurement)
+    X = _cross_noise(chain_hi, chain, system.measurement)[:, 6:, 6:]
+    noise = N_hi[:, 6:, 6:] + N[:, 6:, 6:] - X - np.swapaxes(X, 1, 2)
+    square = _window_mean(
+        np.einsum("ki,kj->kij", twist_step, twist_step), system.times, bias_window
+    )
+    covariance[:, 6:, 6:] += _psd_part(square - BIAS_NOISE_MARGIN * noise)
+    return _symmetric(covariance)
+
+
+def dense_error_covariances(
+    system: ChainSystem, *, anchor_adjoint: np.ndarray | None = None
+) -> np.ndarray:
+    """:func:`error_covariances` without the bias term, with dense matrices: O(K^3),
+    a reference for tests."""
+    K = len(system.fixed)
+    n = K * STATE
+    diagonal, upper = system.information()
+    Lam = np.zeros((n, n))
+    M = np.zeros((n, n))
+    for k in range(K):
+        s = slice(k * STATE, (k + 1) * STATE)
+        Lam[s, s] = diagonal[k]
+        M[s, s] = system.measurement[k]
+        if k + 1 < K:
+            t = slice((k + 1) * STATE, (k + 2) * STATE)
+            Lam[s, t] = upper[k]
+            Lam[t, s] = upper[k].T
+    P = np.linalg.inv(Lam)
+    Y = system.shared.reshape(n, -1)
+    T = np.eye(n)
+    if anchor_adjoint is not None:
+        for k in range(K):
+            T[k * STATE : k * STATE + 6, :6] -= anchor_adjoint[k]
+    TP = T @ P
+    C = TP @ M @ TP.T + (TP @ Y) @ (TP @ Y).T
+    out = np.array([C[k * STATE : (k + 1) * STATE, k * STATE : (k + 1) * STATE] for k in range(K)])
+    if anchor_adjoint is not None:
+        spread = (P - P @ M @ P)[:6, :6]
+        out[:, :6, :6] += anchor_adjoint @ spread @ np.swapaxes(anchor_adjoint, 1, 2)
+    return out

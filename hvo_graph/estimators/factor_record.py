@@ -1,0 +1,143 @@
+"""The smoother's factors, kept by role so that its error covariance can be computed.
+
+:mod:`hvo_graph.estimators.error_covariance` needs the linearized system split
+by where each factor's information comes from: the motion model, priors
+without random error, and measurements (with the shared reference-frame noise
+each pose measurement carries). The back ends (ISAM2, fixed-lag) do not keep
+every factor, so the smoother records them here as it adds them, and
+:meth:`FactorRecord.system` linearizes them at the final estimate.
+
+Factors on frames further apart than neighbours (a keyframe's between factor,
+a twist factor across a dropped frame) enter as if the earlier frame were
+known: the chain stays block tridiagonal.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from dataclasses import dataclass, field
+
+import gtsam
+import numpy as np
+from gtsam.symbol_shorthand import V, X
+
+from hvo_graph.estimators.error_covariance import STATE, ChainSystem, error_covariances
+
+
+@dataclass
+class _Shared:
+    """A pose factor's response to the reference points' noise (unit variance)."""
+
+    factor: gtsam.NonlinearFactor
+    whitening: np.ndarray  # (6, 6) R with R^T R = the factor's information
+    jacobian: np.ndarray  # (6, 2N) d eta / d rho
+    ids: np.ndarray  # (N,) reference point ids
+
+
+@dataclass
+class FactorRecord:
+    """Every factor of a smoother run, by role (see the module docstring)."""
+
+    motion: list[gtsam.NonlinearFactor] = field(default_factory=list)
+    fixed: list[gtsam.NonlinearFactor] = field(default_factory=list)
+    measurement: list[gtsam.NonlinearFactor] = field(default_factory=list)
+    shared: list[_Shared] = field(default_factory=list)
+
+    def add_shared(
+        self,
+        factor: gtsam.NonlinearFactor,
+        covariance: np.ndarray,
+        jacobian: np.ndarray,
+        ids: np.ndarray,
+    ) -> None:
+        """A pose measurement factor (noise ``covariance``, own pixels) whose error also
+        moves by ``jacobian`` (6, 2N) per unit of the reference points ``ids``' noise."""
+        # GTSAM's own whitening R (R^T R = covariance^-1), the one in the linearized A.
+        whitening = gtsam.noiseModel.Gaussian.Covariance(covariance).R()
+        self.shared.append(_Shared(factor, whitening, np.asarray(jacobian), ids))
+
+    def system(
+        self, values: gtsam.Values, indices: Sequence[int], times: Sequence[float]
+    ) -> ChainSystem:
+        """The linearized chain at ``values`` over the frames ``indices`` (in order)."""
+        K = len(indices)
+        slot = {}
+        for n, k in enumerate(indices):
+            slot[X(k)] = (n, 0)
+            slot[V(k)] = (n, 6)
+        columns = _shared_columns(self.shared)
+        out = {
+            "motion_diagonal": np.zeros((K, STATE, STATE)),
+            "motion_upper": np.zeros((max(K - 1, 0), STATE, STATE)),
+            "measurement_upper": np.zeros((max(K - 1, 0), STATE, STATE)),
+            "fixed": np.zeros((K, STATE, STATE)),
+            "measurement": np.zeros((K, STATE, STATE)),
+            "shared": np.zeros((K, STATE, max(2 * len(columns), 1))),
+            "gradient": np.zeros((K, STATE)),
+        }
+        for factor in self.motion:
+            _accumulate(factor, values, slot, out["motion_diagonal"], out["motion_upper"])
+        for factor in self.fixed:
+            _accumulate(factor, values, slot, out["fixed"], None)
+        measured = self.measurement + [s.factor for s in self.shared]
+        for factor in measured:
+            places = _accumulate(factor, values, slot, out["measurement"], out["measurement_upper"])
+            A, b = factor.linearize(values).jacobian()
+            for n, offset, column in places:
+                out["gradient"][n, offset : offset + 6] += A[:, column : column + 6].T @ b
+        for item in self.shared:
+            A, _ = item.factor.linearize(values).jacobian()
+            ((n, offset),) = (slot[key] for key in item.factor.keys())
+            response = A.T @ (item.whitening @ item.jacobian)  # (6, 2N)
+            cols = np.ravel([[2 * columns[i], 2 * columns[i] + 1] for i in item.ids])
+            out["shared"][n, offset : offset + 6, cols] += response.T
+        return ChainSystem(times=np.asarray(times, dtype=float), **out)
+
+    def covariances(
+        self,
+        finals: Sequence[tuple[gtsam.Pose3, np.ndarray]],
+        indices: Sequence[int],
+        times: Sequence[float],
+        *,
+        anchored: bool,
+    ) -> np.ndarray:
+        """(K, 12, 12) covariance of the smoothed errors at the final (pose, twist) of each
+        frame; ``anchored``: the poses are reported relative to the first one's."""
+        values = gtsam.Values()
+        for k, (pose, twist) in zip(indices, finals, strict=True):
+            values.insert(X(k), pose)
+            values.insert(V(k), np.asarray(twist, dtype=float))
+        adjoint = None
+        if anchored:
+            anchor = finals[0][0]
+            adjoint = np.array([pose.between(anchor).AdjointMap() for pose, _ in finals])
+        return error_covariances(self.system(values, indices, times), anchor_adjoint=adjoint)
+
+
+def _shared_columns(shared: Sequence[_Shared]) -> dict[int, int]:
+    ids = sorted({int(i) for item in shared for i in item.ids})
+    return {i: c for c, i in enumerate(ids)}
+
+
+def _accumulate(
+    factor: gtsam.NonlinearFactor,
+    values: gtsam.Values,
+    slot: dict[int, tuple[int, int]],
+    diagonal: np.ndarray,
+    upper: np.ndarray | None,
+) -> list[tuple[int, int, int]]:
+    """Add the factor's information to the chain's blocks; its (frame, offset, column)
+    places (blocks on frames before the latest one's neighbour are left out)."""
+    linear = factor.linearize(values)
+    H = linear.information()
+    places = [(*slot[key], 6 * i) for i, key in enumerate(linear.keys())]
+    latest = max(n for n, _, _ in places)
+    places = [p for p in places if p[0] >= latest - 1]
+    for n1, o1, c1 in places:
+        for n2, o2, c2 in places:
+            block = H[c1 : c1 + 6, c2 : c2 + 6]
+            if n1 == n2:
+                diagonal[n1, o1 : o1 + 6, o2 : o2 + 6] += block
+            elif n2 == n1 + 1 and upper is not None:
+                upper[n1, o1 : o1 + 6, o2 : o2 + 6] += block
+    return places
