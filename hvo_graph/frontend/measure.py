@@ -17,7 +17,7 @@ For every frame k (paper Section III, NOTES sections 2-3):
 Covariances are first-order propagations of isotropic pixel noise sigma
 (``pixel_sigma``, pixels, over the mean focal length). The pose's,
 (J^T Sigma^-1 J)^-1 with Sigma_i = s^2 (I + A_i A_i^T), is reported in two
-parts (:func:`~hvo_graph.geometry.transfer.pose_covariance_parts`): the
+parts (:func:`~hvo_graph.geometry.transfer.pose_noise`): the
 reference frame's pixel noise (``PoseMeasurement.reference_covariance``) is one
 draw shared by every pose measured against it, the current frame's is
 independent from frame to frame. A flow shares its pixels with the two poses
@@ -32,6 +32,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from hvo_graph.errors import InputError, as_integer, as_number
+from hvo_graph.frontend._points import TrackedFrame, common_points, normalized_by_id
 from hvo_graph.frontend.velocity import flow_twist, mid_interval_plane
 from hvo_graph.geometry.camera import CameraModel
 from hvo_graph.geometry.continuous import motion_after_twist
@@ -49,7 +50,7 @@ from hvo_graph.geometry.discrete import (
 )
 from hvo_graph.geometry.transfer import (
     keyframe_plane_jacobian,
-    pose_noise_jacobians,
+    pose_noise,
     pose_normal_equations,
     retract_motion,
     transfer_chi2,
@@ -173,36 +174,6 @@ class FrontEndConfig:
         return max(RANSAC_SIGMAS * self.pixel_sigma, MIN_RANSAC_PX)
 
 
-@dataclass(frozen=True)
-class _Frame:
-    """What the front end keeps of one processed frame."""
-
-    index: int
-    t: float
-    ids: np.ndarray  # (N,) sorted
-    m: np.ndarray  # (N, 3) normalized, rows in ids order
-    R: np.ndarray | None  # (3, 3) motion reference -> this frame (X = R X* + T)
-    T: np.ndarray | None  # (3,)
-
-
-def _normalized_by_id(camera: CameraModel, obs: FrameObservations) -> tuple[np.ndarray, np.ndarray]:
-    """Sorted ids and their normalized coordinates."""
-    order = np.argsort(obs.ids, kind="stable")
-    ids = np.asarray(obs.ids)[order]
-    if len(ids) > 1 and np.any(ids[1:] == ids[:-1]):
-        raise InputError(f"frame {obs.index}: a point id appears twice")
-    m = camera.pixel_to_normalized(np.asarray(obs.uv, dtype=float)[order]) if len(ids) else None
-    return ids, (m if m is not None else np.empty((0, 3)))
-
-
-def _common(
-    a: _Frame, ids: np.ndarray, m: np.ndarray, *, with_ids: bool = False
-) -> tuple[np.ndarray, ...]:
-    """The rows of ``a.m`` and ``m`` of the ids both have (and those ids, if asked)."""
-    shared, ia, ib = np.intersect1d(a.ids, ids, assume_unique=True, return_indices=True)
-    return (a.m[ia], m[ib], shared) if with_ids else (a.m[ia], m[ib])
-
-
 class MeasurementFrontEnd:
     """Streaming front end: one :meth:`process` call per frame, in order.
 
@@ -219,8 +190,8 @@ class MeasurementFrontEnd:
         self.plane = plane
         self.config = config or FrontEndConfig()
         self._sigma = max(self.config.pixel_sigma, MIN_PIXEL_SIGMA) / camera.mean_focal
-        self._reference: _Frame | None = None
-        self._previous: _Frame | None = None
+        self._reference: TrackedFrame | None = None
+        self._previous: TrackedFrame | None = None
         self._normal: np.ndarray | None = None if plane.normal is None else plane.normal
         if self.config.pose_solver == "ippe" and self._normal is None:
             raise InputError("pose_solver 'ippe' needs the plane normal in the camera file")
@@ -242,13 +213,13 @@ class MeasurementFrontEnd:
             raise InputError(
                 f"frame {obs.index}: time {obs.t} does not increase (previous {self._previous.t})"
             )
-        ids, m = _normalized_by_id(self.camera, obs)
+        ids, m = normalized_by_id(self.camera, obs)
         if self._excluded:
             keep = ~np.isin(ids, list(self._excluded))
             ids, m = ids[keep], m[keep]
         self._rejected_now = 0
         if self._reference is None:
-            self._reference = _Frame(obs.index, obs.t, ids, m, np.eye(3), np.zeros(3))
+            self._reference = TrackedFrame(obs.index, obs.t, ids, m, np.eye(3), np.zeros(3))
             self._world_index = obs.index
         try:
             R, T, pose = self._measure_pose(ids, m)
@@ -257,7 +228,7 @@ class MeasurementFrontEnd:
         prev = self._previous  # no pose: carry the last motion on at the last twist
         if pose is None and self._normal is not None and prev is not None and prev.R is not None:
             R, T = motion_after_twist(prev.R, prev.T, self._last_twist, obs.t - prev.t)
-        frame = _Frame(obs.index, obs.t, ids, m, R, T)
+        frame = TrackedFrame(obs.index, obs.t, ids, m, R, T)
         velocity = self._measure_velocity(frame) if prev is not None else None
         self._last_twist = self._last_twist if velocity is None else np.asarray(velocity.twist)
         limit = self.config.keyframe_min_points  # a new reference must see this many points
@@ -295,10 +266,10 @@ class MeasurementFrontEnd:
         (for the velocity's plane) and the pose measurement T_rc, or Nones.
         """
         assert self._reference is not None
-        m_ref, m_cur, shared = _common(self._reference, ids, m, with_ids=True)
+        m_ref, m_cur, shared = common_points(self._reference, ids, m, with_ids=True)
         if self._switch_keyframe(len(m_ref), ids, m):
             self._reference = self._previous
-            m_ref, m_cur, shared = _common(self._reference, ids, m, with_ids=True)
+            m_ref, m_cur, shared = common_points(self._reference, ids, m, with_ids=True)
         ref = self._reference
         if len(m_ref) < self.config.min_points or any(
             collinear(m_, COLLINEAR_SIGMAS * self._sigma) for m_ in (m_ref, m_cur)
@@ -332,13 +303,13 @@ class MeasurementFrontEnd:
         if refit:
             R, T, info = self._refine(R, T, m_ref, m_cur, plane)
         R_rc, p_rc = camera_pose_from_motion(R, T)
-        H, G = pose_noise_jacobians(R, T, m_ref, m_cur, plane, self._sigma)
-        current, reference = self._sigma**2 * (H @ H.T), self._sigma**2 * (G @ G.T)
+        covariance, shared_covariance, shared_jacobian = pose_noise(
+            R, T, m_ref, m_cur, plane, self._sigma
+        )
         keyframe: dict[str, np.ndarray] = {}
         if ref.index != self._world_index:
-            # The plane in the keyframe comes from the keyframe's *measured* pose: say which
-            # pose, and how T_rc moves with it, so an estimator can re-place the plane at its
-            # own keyframe estimate.
+            # The keyframe's plane comes from its *measured* pose: say which, and how T_rc
+            # moves with it, so an estimator can re-place the plane at its own estimate.
             R_wr, p_wr = camera_pose_from_motion(ref.R, ref.T)
             keyframe = {
                 "reference_rotation": R_wr,
@@ -348,12 +319,10 @@ class MeasurementFrontEnd:
                 ),
             }
         pose = PoseMeasurement(
-            R_rc,
-            p_rc,
-            0.5 * (current + current.T + reference + reference.T),
+            *(R_rc, p_rc, covariance),
             reference=ref.index,
-            reference_covariance=0.5 * (reference + reference.T),
-            reference_jacobian=-self._sigma * G,
+            reference_covariance=shared_covariance,
+            reference_jacobian=shared_jacobian,
             reference_ids=shared[keep],
             **keyframe,
         )
@@ -411,7 +380,7 @@ class MeasurementFrontEnd:
             return shared_with_previous >= self.config.min_points
         return shared_with_previous >= 2 * shared_with_reference
 
-    def _plane_in(self, frame: _Frame) -> Plane:
+    def _plane_in(self, frame: TrackedFrame) -> Plane:
         """The plane in ``frame``'s camera frame: n = R n*, d = d* + n^T T."""
         n = frame.R @ self._normal
         return Plane(self.plane.distance + float(n @ frame.T), n)
@@ -466,12 +435,12 @@ class MeasurementFrontEnd:
 
     # -- velocity from H_c ---------------------------------------------------------------------
 
-    def _measure_velocity(self, frame: _Frame) -> VelocityMeasurement | None:
+    def _measure_velocity(self, frame: TrackedFrame) -> VelocityMeasurement | None:
         prev = self._previous
         assert prev is not None
         if self._normal is None:
             return None
-        m0, m1 = _common(prev, frame.ids, frame.m)
+        m0, m1 = common_points(prev, frame.ids, frame.m)
         if len(m0) < self.config.min_points or collinear(m0, COLLINEAR_SIGMAS * self._sigma):
             return None
         motions = [(f.R, f.T) for f in (prev, frame) if f.R is not None]

@@ -270,3 +270,24 @@ def retract_motion(
     pose = gtsam.Pose3(gtsam.Rot3(R_wc), p_wc).retract(delta)
     R_new = pose.rotation().matrix().T
     return R_new, -R_new @ pose.translation()
+
+
+def pose_noise(
+    R: np.ndarray,
+    T: np.ndarray,
+    m_ref: np.ndarray,
+    m_cur: np.ndarray,
+    plane: Plane,
+    sigma: float,
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """A fitted pose's noise (:func:`pose_noise_jacobians`), as an H_d measurement carries it.
+
+    Returns:
+        covariance (6, 6) = C_cur + C_ref; C_ref (6, 6), the reference frame's share;
+        J (6, 2N) = -sigma G, how the pose error moves per pixel standard deviation of
+        the reference points' noise (C_ref = J J^T).
+    """
+    H, G = pose_noise_jacobians(R, T, m_ref, m_cur, plane, sigma)
+    current, reference = sigma**2 * (H @ H.T), sigma**2 * (G @ G.T)
+    covariance = 0.5 * (current + current.T + reference + reference.T)
+    return covariance, 0.5 * (reference + reference.T), -sigma * G
