@@ -352,7 +352,8 @@ def test_batch_marginals_equal_the_dense_inverse_information(paper_truth):
     smoother = BatchSmoother(compute_covariance=True)
     smoother.run(frames)
     expected = dense_marginals(smoother, smoother.backend.values())
-    for i, (_, _, cov) in zip(smoother._indices, smoother.backend.final(smoother._indices)):
+    finals = smoother.backend.final(smoother._indices)
+    for i, (_, _, cov) in zip(smoother._indices, finals, strict=True):
         np.testing.assert_allclose(
             cov, expected[i], rtol=1e-6, atol=1e-12 * np.abs(expected[i]).max()
         )

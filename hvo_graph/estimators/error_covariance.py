@@ -195,6 +195,26 @@ def _relative(N: np.ndarray, N0: np.ndarray, adjoint: np.ndarray | None) -> np.n
     return _symmetric(out)
 
 
+def _bridged(spread: np.ndarray, system: ChainSystem) -> np.ndarray:
+    """The model's extra spread on frames without a pose measurement (a gap the motion
+    model bridges): P - P M P there beyond its value at the nearest measured frames.
+
+    Where poses come every frame, a smooth motion does not realise the model's spread
+    (the bias probe measures what it does); across a gap the estimate is the model's
+    interpolation, and its error is the model's."""
+    measured = np.trace(system.measurement[:, :6, :6], axis1=1, axis2=2) > 0
+    extra = np.zeros_like(spread)
+    if measured.all() or not measured.any():
+        return extra
+    t, where = system.times, np.flatnonzero(measured)
+    for k in np.flatnonzero(~measured):
+        i = np.searchsorted(t[where], t[k])
+        near = [where[j] for j in (i - 1, i) if 0 <= j < len(where)]
+        reference = np.mean([spread[j] for j in near], axis=0)
+        extra[k] = _psd_part((spread[k] - reference)[None])[0]
+    return extra
+
+
 def _window_mean(values: np.ndarray, times: np.ndarray, half_width: float) -> np.ndarray:
     """Mean of values (K, ...) over the frames within +-half_width seconds of each frame."""
     flat = values.reshape(len(values), -1)
@@ -240,6 +260,7 @@ def error_covariances(
         # error is also the model's, the prior-induced spread P - P M P of the marginal.
         spread = (chain.P[0] - N[0])[:6, :6]
         covariance[:, :6, :6] += anchor_adjoint @ spread @ np.swapaxes(anchor_adjoint, 1, 2)
+    covariance += _bridged(chain.P - N, system)
     if bias_scale is None:
         return _symmetric(covariance)
 
@@ -287,7 +308,11 @@ def dense_error_covariances(
     TP = T @ P
     C = TP @ M @ TP.T + (TP @ Y) @ (TP @ Y).T
     out = np.array([C[k * STATE : (k + 1) * STATE, k * STATE : (k + 1) * STATE] for k in range(K)])
+    model = P - P @ M @ P
     if anchor_adjoint is not None:
-        spread = (P - P @ M @ P)[:6, :6]
+        spread = model[:6, :6]
         out[:, :6, :6] += anchor_adjoint @ spread @ np.swapaxes(anchor_adjoint, 1, 2)
-    return out
+    blocks = np.array(
+        [model[k * STATE : (k + 1) * STATE, k * STATE : (k + 1) * STATE] for k in range(K)]
+    )
+    return out + _bridged(blocks, system)
