@@ -76,26 +76,6 @@ RATIOS: tuple[tuple[str, str], ...] = (
     ("smoother-online", "kalman"),
 )
 
-#: The bounds the smoother is held to on the RMSE ratios (paper noisy scenario, 20 seeds,
-#: errors after the first second).
-TARGETS: dict[tuple[str, str], dict[str, float]] = {
-    ("smoother", "kalman"): {
-        "position": 0.6,
-        "orientation": 0.85,
-        "linear_velocity": 0.5,
-        "angular_velocity": 0.4,
-    },
-    ("smoother", "measurements"): {
-        "position": 0.8,
-        "orientation": 0.85,
-        "linear_velocity": 0.2,
-        "angular_velocity": 0.3,
-    },
-    ("smoother", "ippe"): {"position": 0.8, "orientation": 0.85},
-    ("smoother", "kalman-measured"): {q: 0.95 for q, _, _ in QUANTITIES},
-    ("smoother-online", "kalman"): {"position": 0.8, "angular_velocity": 0.6},
-}
-
 ERROR_FIGSIZE = (11.0, 7.5)  # inches; PNG 1650 x 1125 px at 150 dpi
 DISTRIBUTION_FIGSIZE = (11.0, 8.0)  # PNG 1650 x 1200 px
 
@@ -231,28 +211,13 @@ def tables_markdown(results: Sequence[SeedResult], methods: Sequence[str]) -> st
     ]
     ratios = [(a, b) for a, b in RATIOS if a in methods and b in methods]
     if ratios:
-        ratio_rows, target_rows = [], []
+        ratio_rows = []
         stats = {pair: ratio_statistics(results, *pair) for pair in ratios}
         for a, b in ratios:
             ratio_rows.append(
                 [f"{METHOD_TITLES[a]} / {METHOD_TITLES[b]}"]
                 + [format_ci(stats[(a, b)][q]) for q, _, _ in QUANTITIES]
             )
-            for q, title, _ in QUANTITIES:
-                bound = TARGETS.get((a, b), {}).get(q)
-                ci = stats[(a, b)][q]
-                if bound is None or ci is None:
-                    continue
-                met = "yes" if ci.mean <= bound else "**no**"
-                target_rows.append(
-                    [
-                        f"{METHOD_TITLES[a]} / {METHOD_TITLES[b]}",
-                        title,
-                        format_ci(ci),
-                        f"<= {bound:g}",
-                        met,
-                    ]
-                )
         parts += [
             "",
             "### RMSE ratios: mean over seeds of the per-seed ratio ± 95 % confidence half-width",
@@ -263,18 +228,6 @@ def tables_markdown(results: Sequence[SeedResult], methods: Sequence[str]) -> st
             "",
             markdown_table(["ratio"] + [title for _, title, _ in QUANTITIES], ratio_rows),
         ]
-        if target_rows:
-            parts += [
-                "",
-                "### Bounds the smoother is held to "
-                "(paper noisy scenario, errors after the first second)",
-                "",
-                "A target is met when the mean per-seed ratio is at or below the bound.",
-                "",
-                markdown_table(
-                    ["ratio", "quantity", "measured", "target", "met"], target_rows, align="llrrl"
-                ),
-            ]
     return "\n".join(parts) + "\n"
 
 
