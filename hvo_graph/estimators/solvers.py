@@ -470,7 +470,7 @@ def make_backend(
     params = isam2_params(
         relinearize_threshold,
         relinearize_skip,
-        find_unused_factor_slots=solver == FixedLagBackend.solver,
+        find_unused_factor_slots=True,  # both keep a window: reuse the freed slots
     )
     if solver == FixedLagBackend.solver:
         return FixedLagBackend(params, lag, compute_covariance=compute_covariance)
