@@ -40,7 +40,7 @@ def whole_sequence_isam2() -> FactorGraphSmoother:
 def rotation_deg(a: np.ndarray, b: np.ndarray) -> np.ndarray:
     """Angles (deg) between two stacks of rotation matrices."""
     return np.degrees(
-        [np.linalg.norm(gtsam.Rot3.Logmap(gtsam.Rot3(x.T @ y))) for x, y in zip(a, b)]
+        [np.linalg.norm(gtsam.Rot3.Logmap(gtsam.Rot3(x.T @ y))) for x, y in zip(a, b, strict=True)]
     )
 
 
