@@ -1,16 +1,17 @@
 """Speed and memory of the front end, the Kalman filter and every smoother, side by side.
 
-For each sequence length (default 300, 3,000 and 30,000 frames of the paper's
+For each sequence length (default 1,000, 10,000 and 100,000 frames of the paper's
 noisy scenario at 30 fps; the motion is periodic with a 10 s period, so a long
 run is just a longer duration) this script
 
 1. simulates the sequence and runs the measurement front end over it once,
    timing every frame (H_d pose + H_c velocity per frame);
 2. feeds those same measurements to each estimator in this process, one after
-   the other: the paper's Kalman filter, the factor-graph smoother with ISAM2,
-   with the fixed-lag smoother (1 s window) and with batch Levenberg-Marquardt.
-   Every ``update`` call is timed, then the final ``trajectory()`` call (the
-   batch solver does all its optimization there; the others only read out);
+   the other: the paper's Kalman filter, the factor-graph smoother (default:
+   ISAM2 over a window, then the batch solve), with the fixed-lag smoother (1 s
+   window) and with batch Levenberg-Marquardt. Each runs ``run(frames)`` as the
+   command line does; every ``update`` call is timed, and the rest of ``run``
+   (process-noise fit, final ``trajectory()``: the batch solves happen there);
 3. measures peak memory in a fresh subprocess per configuration (component x
    length), as the growth of the resident set while the component runs: the
    peak resident set VmHWM of /proc/self/status (= ``getrusage`` ru_maxrss on
@@ -19,15 +20,19 @@ run is just a longer duration) this script
    GTSAM's C++ allocations too, which ``tracemalloc`` does not see. Where the
    reset is unavailable the ru_maxrss delta is reported (a lower bound);
 4. profiles the ISAM2 smoother (``--profile-component``) with cProfile on 3,000
-   frames: where the time goes.
+   frames: where the time goes;
+5. runs a bare ``Pose3`` chain through ISAM2 (``--chain-poses``, nothing from
+   hvo_graph): GTSAM 4.3's update cost grows with the number of poses, the
+   reason the default smoother keeps a window.
 
 Columns: overall frames per second = frames / (all updates + ``trajectory()``);
 the CPU time of the run (``time.process_time``, steadier than wall time when
 other processes share the machine); the mean wall time per frame of the first
 and of the last 100 updates and their ratio (how the cost per frame grows with
-the length of the sequence). Batch LM is skipped above ``--batch-max-frames``
-(default 3,000: its solve re-linearizes the whole graph on every iteration; the
-output says so). Wall-clock timings depend on the machine and its load: the
+the length of the sequence), and the cost curve: the mean time per update in
+each tenth of the longest run. Batch LM is skipped above ``--batch-max-frames``
+(default 10,000: its solve re-linearizes the whole graph on every iteration;
+the output says so). Wall-clock timings depend on the machine and its load: the
 report records both.
 
 Prints the table and writes it, with the machine, the command and the profile,
@@ -35,7 +40,7 @@ to ``docs/performance.md``. Progress goes to stderr.
 
 Usage::
 
-    .venv/bin/python experiments/benchmark.py                    # 300, 3,000, 30,000 frames
+    .venv/bin/python experiments/benchmark.py                    # 1,000 to 100,000 frames
     .venv/bin/python experiments/benchmark.py --quick            # 300 and 1,000 frames
     .venv/bin/python experiments/benchmark.py --sizes 3000 --components isam2 fixed-lag
     .venv/bin/python experiments/benchmark.py --sizes 3000 --components isam2 isam2-cov
@@ -45,6 +50,7 @@ Usage::
 from __future__ import annotations
 
 import argparse
+import contextlib
 import cProfile
 import dataclasses
 import gc
@@ -85,12 +91,49 @@ COMPONENTS: dict[str, str] = {
 }
 #: What runs without ``--components`` ("isam2-cov" adds a marginal covariance per frame).
 DEFAULT_COMPONENTS: tuple[str, ...] = ("frontend", "kalman", "isam2", "fixed-lag", "batch")
-DEFAULT_SIZES: tuple[int, ...] = (300, 3000, 30000)
+DEFAULT_SIZES: tuple[int, ...] = (1000, 10000, 100000)
 QUICK_SIZES: tuple[int, ...] = (300, 1000)
 #: Frames averaged at the start and at the end of a run for the growth of the cost.
 WINDOW = 100
 FPS = 30.0
-DEFAULT_BATCH_MAX_FRAMES = 3000
+DEFAULT_BATCH_MAX_FRAMES = 10000
+#: Parts of the longest run whose mean cost per frame makes the cost curve.
+CURVE_PARTS = 10
+#: Poses of the bare ISAM2 chain (reproduction of GTSAM 4.3's growing update cost).
+DEFAULT_CHAIN_POSES = 20000
+QUICK_CHAIN_POSES = 1000
+
+#: A bare Pose3 chain through ISAM2, one pose per update: the cost of an update
+#: grows with the number of poses in GTSAM 4.3 (each update destroys a temporary
+#: Bayes tree, and the destructor visits every clique). Runs as printed in
+#: docs/performance.md; ``poses`` and ``parts`` are set by the caller.
+CHAIN_REPRODUCTION = """\
+import time
+
+import gtsam
+import numpy as np
+
+noise = gtsam.noiseModel.Diagonal.Sigmas(np.array([0.01] * 3 + [0.1] * 3))
+step = gtsam.Pose3(gtsam.Rot3.Yaw(0.01), np.array([1.0, 0.0, 0.0]))
+isam = gtsam.ISAM2()
+graph = gtsam.NonlinearFactorGraph()
+graph.add(gtsam.PriorFactorPose3(0, gtsam.Pose3(), noise))
+values = gtsam.Values()
+values.insert(0, gtsam.Pose3())
+isam.update(graph, values)
+pose, per_update, start = gtsam.Pose3(), [], time.perf_counter()
+for k in range(1, poses + 1):
+    graph = gtsam.NonlinearFactorGraph()
+    graph.add(gtsam.BetweenFactorPose3(k - 1, k, step, noise))
+    pose = pose.compose(step)
+    values = gtsam.Values()
+    values.insert(k, pose)
+    isam.update(graph, values)
+    if k % (poses // parts) == 0:  # mean ms per update over the last poses / parts
+        per_update.append(1e3 * (time.perf_counter() - start) / (poses // parts))
+        print(f"{k:6d} poses: {per_update[-1]:.3f} ms per update")
+        start = time.perf_counter()
+"""
 DEFAULT_PROFILE_FRAMES = 3000
 PROFILE_TOP = 15
 
@@ -182,19 +225,28 @@ def run_frontend(scenario: Scenario) -> tuple[list[FrameMeasurement], Timing]:
 
 
 def run_estimator(name: str, frames: Sequence[FrameMeasurement]) -> Timing:
-    """Time every ``update`` of a fresh estimator, then its ``trajectory()``."""
+    """Time a fresh estimator's ``run(frames)`` as the command line runs it: every
+    ``update`` call, and the rest of ``run`` (the final ``trajectory()`` and, for the
+    smoothers, the process-noise fit on the whole sequence before the first update)."""
     estimator = make_component(name)
     clock = time.perf_counter
-    times = np.empty(len(frames))
-    cpu = time.process_time()
-    for i, frame in enumerate(frames):
+    times: list[float] = []
+    update = estimator.update
+
+    def timed_update(frame: FrameMeasurement) -> object:
         start = clock()
-        estimator.update(frame)
-        times[i] = clock() - start
+        result = update(frame)
+        times.append(clock() - start)
+        return result
+
+    estimator.update = timed_update  # type: ignore[method-assign]
+    cpu = time.process_time()
     start = clock()
-    estimator.trajectory()
-    finish = clock() - start
-    return Timing(name, len(frames), times, finish, cpu=time.process_time() - cpu)
+    estimator.run(frames)
+    elapsed = clock() - start
+    per_frame = np.array(times)
+    finish = elapsed - float(per_frame.sum())
+    return Timing(name, len(frames), per_frame, finish, cpu=time.process_time() - cpu)
 
 
 # -- memory, in a fresh subprocess per configuration ------------------------------------------
@@ -360,9 +412,70 @@ TABLE_HEADER: tuple[str, ...] = (
     f"first {WINDOW} [ms/frame]",
     f"last {WINDOW} [ms/frame]",
     "last/first",
-    "trajectory() [s]",
+    "fit + trajectory() [s]",
     "peak memory [MiB]",
 )
+
+
+def cost_curve(timing: Timing, parts: int = CURVE_PARTS) -> list[float]:
+    """Mean ms per ``update`` in each of ``parts`` equal parts of the run, in order."""
+    return [1e3 * float(np.mean(chunk)) for chunk in np.array_split(timing.per_frame, parts)]
+
+
+def curve_section(timings: Sequence[Timing]) -> str:
+    """Markdown: the cost curve of every estimator on the longest sequence it ran."""
+    longest: dict[str, Timing] = {}
+    for t in timings:
+        if t.component != "frontend" and t.frames >= longest.get(t.component, t).frames:
+            longest[t.component] = t
+    rows = []
+    for name in (c for c in COMPONENTS if c in longest):
+        t = longest[name]
+        curve = cost_curve(t)
+        rows.append(
+            [
+                COMPONENTS[name],
+                f"{t.frames:,}",
+                *(f"{c:.3f}" for c in curve),
+                f"{curve[-1] / curve[0]:.2f}",
+            ]
+        )
+    header = ["component", "frames"] + [f"part {i + 1}" for i in range(CURVE_PARTS)]
+    return markdown_table([*header, "last/first"], rows)
+
+
+def chain_growth(poses: int, parts: int = 10) -> list[float]:
+    """Run :data:`CHAIN_REPRODUCTION`: mean ms per update in each tenth of the chain."""
+    namespace: dict[str, object] = {"poses": poses, "parts": parts}
+    with contextlib.redirect_stdout(sys.stderr):  # its progress lines are not the report
+        exec(compile(CHAIN_REPRODUCTION, "<chain reproduction>", "exec"), namespace)
+    return list(namespace["per_update"])  # type: ignore[call-overload]
+
+
+def chain_section(poses: int, per_update: Sequence[float]) -> str:
+    """Markdown: the bare-chain reproduction, its code and what it measured here."""
+    parts = len(per_update)
+    rows = [[f"{(i + 1) * (poses // parts):,}", f"{ms:.3f}"] for i, ms in enumerate(per_update)]
+    return "\n\n".join(
+        [
+            "One ISAM2 holding a whole sequence pays, on every update, for a walk over the "
+            "whole Bayes tree: `ISAM2::recalculateIncremental` builds and destroys a temporary "
+            "tree per update, and in GTSAM 4.3 the `BayesTree` destructor visits every clique "
+            "breadth-first (it did not in 4.2). No ISAM2 parameter avoids it. A bare `Pose3` "
+            "chain shows it, with nothing from hvo_graph:",
+            "```python\n# not run (poses, parts: set by experiments/benchmark.py)\n"
+            + CHAIN_REPRODUCTION
+            + "```",
+            f"Measured here ({poses:,} poses, mean over each {poses // parts:,}):",
+            markdown_table(["poses so far", "ms per update"], rows),
+            f"Last/first: {per_update[-1] / per_update[0]:.1f}. The default smoother therefore "
+            "keeps only a window of frames in ISAM2 (older frames are marginalized into a "
+            "linear prior, so the online estimate of each new frame is unchanged) and gets its "
+            "final trajectory and marginals from one batch solve of the whole graph, started "
+            "from the window's estimates: the same result as the batch solver, at a cost per "
+            "frame that does not grow with the length of the sequence.",
+        ]
+    )
 
 
 def _seconds(value: float) -> str:
@@ -481,6 +594,7 @@ def performance_markdown(
     batch_max: int,
     profile: Profile | None,
     elapsed: float,
+    chain: tuple[int, Sequence[float]] | None = None,
 ) -> str:
     """The whole docs/performance.md."""
     parts = [
@@ -499,14 +613,21 @@ def performance_markdown(
         "sequences are longer durations). The front end runs once per length; its measurements "
         "are fed to every estimator in the same process, one after the other.",
         "",
-        f"- **frames/s**: frames / (all `update` calls + the final `trajectory()`), wall time; "
+        "Every estimator runs as the command line runs it, `run(frames)`.",
+        "",
+        f"- **frames/s**: frames / the whole `run` (every `update` call, the final "
+        "`trajectory()`, and the smoothers' process-noise fit before the first frame), wall time; "
         "**CPU**: CPU seconds of the whole run (`time.process_time`, all threads; steadier "
         "than wall time when other processes load the machine); "
         f"**first / last {WINDOW}**: mean wall time of the first and the last {WINDOW} "
         "`update` calls (front end: `process`), and their ratio (1 = constant cost per frame).",
-        "- **trajectory()**: the final call that returns the smoothed trajectory; the batch "
-        "solver runs all of its Levenberg-Marquardt iterations there, its `update` calls only "
-        "add factors.",
+        "- **fit + trajectory()**: the time `run` spends outside `update`: the smoothers' "
+        "maximum-likelihood fit of the process noise on the whole sequence, and the final call "
+        "that returns the smoothed trajectory. The batch solver and the default smoother run "
+        "their Levenberg-Marquardt solve of the whole graph there (batch from the raw "
+        "measurements; the default smoother from its window's estimates, so in fewer "
+        "iterations); their `update` calls only add factors (and, for the default smoother, "
+        "update the window).",
     ]
     if memory:
         parts.append(
@@ -523,6 +644,20 @@ def performance_markdown(
             "custom factors) and factorizes the whole graph."
         )
     parts += ["", results_table(timings, skipped, memory)]
+    if any(t.component != "frontend" for t in timings):
+        parts += [
+            "",
+            "## Cost per frame along the sequence",
+            "",
+            f"Mean wall time per `update` [ms] in each of {CURVE_PARTS} equal parts of the "
+            "longest run of every estimator (the final `trajectory()` not included; it is in "
+            "the table above). A flat row is a cost per frame that does not grow with the "
+            "length of the sequence.",
+            "",
+            curve_section(timings),
+        ]
+    if chain is not None:
+        parts += ["", "## Why the default smoother keeps a window", "", chain_section(*chain)]
     if profile is not None:
         title = COMPONENTS[profile.component]
         parts += ["", f"## Where the time goes ({title})", "", profile_section(profile)]
@@ -638,6 +773,12 @@ def build_parser() -> argparse.ArgumentParser:
         help="estimator to profile (default isam2)",
     )
     parser.add_argument("--no-memory", action="store_true", help="skip the memory subprocesses")
+    parser.add_argument(
+        "--chain-poses",
+        type=int,
+        help=f"poses of the bare ISAM2 chain (default {DEFAULT_CHAIN_POSES:,}, --quick "
+        f"{QUICK_CHAIN_POSES:,}, 0 none)",
+    )
     parser.add_argument("--repeat", type=int, default=1, help="keep the fastest of N timed runs")
     parser.add_argument("--seed", type=int, default=0, help="pixel-noise seed")
     parser.add_argument("--out", type=Path, default=Path("docs/performance.md"))
@@ -671,6 +812,11 @@ def main(argv: Sequence[str] | None = None) -> int:
             profile_frames = 300 if args.quick else DEFAULT_PROFILE_FRAMES
         if profile_frames < 0:
             raise InputError(f"--profile-frames: expected >= 0, got {profile_frames}")
+        chain_poses = args.chain_poses
+        if chain_poses is None:
+            chain_poses = QUICK_CHAIN_POSES if args.quick else DEFAULT_CHAIN_POSES
+        if chain_poses != 0 and chain_poses < 10:
+            raise InputError(f"--chain-poses: expected 0 or >= 10, got {chain_poses}")
     except InputError as error:
         print(f"benchmark: error: {error}", file=sys.stderr)
         return 2
@@ -690,8 +836,16 @@ def main(argv: Sequence[str] | None = None) -> int:
         _progress(f"profile: {args.profile_component} on {profile_frames:,} frames")
         profile = profile_component(profile_input, args.profile_component)
 
+    chain = None
+    if chain_poses:
+        _progress(f"bare ISAM2 chain: {chain_poses:,} poses")
+        chain = (chain_poses, chain_growth(chain_poses))
+
     table = results_table(timings, skipped, memory)
     print(table)
+    if any(t.component != "frontend" for t in timings):
+        print()
+        print(curve_section(timings))
     if profile is not None:
         print()
         print(profile_section(profile))
@@ -704,6 +858,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         batch_max=args.batch_max_frames,
         profile=profile,
         elapsed=time.perf_counter() - started,
+        chain=chain,
     )
     write_text_atomic(args.out, text)
     _progress(f"wrote {args.out} in {time.perf_counter() - started:.0f} s")

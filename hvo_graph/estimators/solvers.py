@@ -5,8 +5,9 @@ factors and initial values and hands them to one back end (:class:`Backend`),
 which owns the solver's state:
 
 - :class:`Isam2Backend` (``"isam2"``, ``--method smoother``): one ISAM2 update
-  per frame; the online estimate of frame k is the value right after its
-  update, the final values the smoothed ones;
+  per frame over a sliding window (older frames marginalized); the online
+  estimate of frame k is the value right after its update, the final values
+  the batch Levenberg-Marquardt optimum of the whole graph;
 - :class:`BatchBackend` (``"batch"``): collects the graph and solves it with
   :func:`levenberg_marquardt` when the trajectory is asked for; its online
   estimates are the initial values (unfused);
@@ -34,6 +35,8 @@ import gtsam
 import numpy as np
 from gtsam.symbol_shorthand import V, X
 
+from hvo_graph.estimators.least_squares import levenberg_marquardt
+
 #: The fixed-lag smoother marginalizes in blocks of lag / MARGINALIZATION_BLOCKS
 #: seconds (frame timestamps are rounded down to the block), so its window holds
 #: between lag and 1.1 lag seconds. Marginalizing at every frame made GTSAM's
@@ -41,69 +44,13 @@ from gtsam.symbol_shorthand import V, X
 #: re-eliminates the window at each marginalization).
 MARGINALIZATION_BLOCKS: int = 10
 
+#: Frames the default smoother ("isam2") keeps in its online window before
+#: marginalizing them (2 s at 30 fps). Longer than any usual keyframe use or
+#: twist interval, so the online estimates match one ISAM2 over the whole sequence.
+ONLINE_WINDOW: int = 60
+
 #: A frame's values: (pose, twist, 12x12 covariance of [pose tangent; twist] or None).
 FrameValues = tuple[gtsam.Pose3, np.ndarray, "np.ndarray | None"]
-
-
-def levenberg_marquardt(
-    graph: gtsam.NonlinearFactorGraph,
-    initial: gtsam.Values,
-    *,
-    max_iterations: int = 100,
-    relative_tolerance: float = 1e-10,
-    absolute_tolerance: float = 1e-12,
-    initial_lambda: float = 1e-5,
-) -> tuple[gtsam.Values, int]:
-    """Minimize the graph's error with Levenberg-Marquardt (GTSAM's scheme, Python loop).
-
-    Each iteration linearizes the graph at the current values (Gauss-Newton
-    system J delta = -e), adds sqrt(lambda) I damping priors on every variable
-    (GTSAM's default, non-diagonal damping), solves with GTSAM's multifrontal
-    elimination, and retracts; a step that does not lower the error is retried
-    with lambda x 10, an accepted one divides lambda by 10. Stops when the
-    error decrease is below ``relative_tolerance * error + absolute_tolerance``.
-
-    Why not ``gtsam.LevenbergMarquardtOptimizer``: its iterates are C++
-    ``Values``, which pybind11 copies in full for every Python ``CustomFactor``
-    callback, making one iteration O(N^2) in the number of frames (34 s for
-    3,000 frames against 1 s here, where the iterates are Python-owned).
-
-    Args:
-        graph: the nonlinear factor graph.
-        initial: initial values of every variable.
-        max_iterations: most linearizations.
-        relative_tolerance, absolute_tolerance: convergence test on the error decrease.
-        initial_lambda: starting damping.
-    Returns:
-        (optimized values, iterations used).
-    """
-    values = gtsam.Values(initial)
-    error = graph.error(values)
-    dims = [(key, values.zeroVectors().at(key).size) for key in values.keys()]
-    units = {d: gtsam.noiseModel.Unit.Create(d) for _, d in dims}
-    eyes = {d: np.eye(d) for _, d in dims}
-    lam = initial_lambda
-    for iteration in range(1, max_iterations + 1):
-        linear = graph.linearize(values)
-        while True:
-            damped = gtsam.GaussianFactorGraph()
-            damped.push_back(linear)
-            root = math.sqrt(lam)
-            for key, d in dims:
-                damped.add(key, root * eyes[d], np.zeros(d), units[d])
-            candidate = values.retract(damped.optimize())
-            candidate_error = graph.error(candidate)
-            if candidate_error <= error:
-                lam = max(lam / 10.0, 1e-15)
-                break
-            lam *= 10.0
-            if lam > 1e10:  # no descent direction left: converged as far as it goes
-                return values, iteration
-        decrease = error - candidate_error
-        values, error = candidate, candidate_error
-        if decrease <= relative_tolerance * error + absolute_tolerance:
-            return values, iteration
-    return values, max_iterations
 
 
 def isam2_params(
@@ -171,10 +118,10 @@ class Backend(ABC):
         """The final values of the frames ``indices`` (every frame so far), in order."""
 
 
-class Isam2Backend(Backend):
-    """One ISAM2 update per frame."""
+class IncrementalBackend(Backend):
+    """One ISAM2 update per frame (the base of :class:`FixedLagBackend`)."""
 
-    solver = "isam2"
+    solver = ""
 
     def __init__(self, params: gtsam.ISAM2Params, *, compute_covariance: bool) -> None:
         super().__init__(compute_covariance=compute_covariance)
@@ -224,7 +171,7 @@ class Isam2Backend(Backend):
             yield values.atPose3(X(index)), values.atVector(V(index)), cov
 
 
-class FixedLagBackend(Isam2Backend):
+class FixedLagBackend(IncrementalBackend):
     """GTSAM's incremental fixed-lag smoother over a window of ``lag`` seconds."""
 
     solver = "fixed-lag"
@@ -356,6 +303,158 @@ class BatchBackend(Backend):
             yield values.atPose3(X(index)), values.atVector(V(index)), cov
 
 
+class Isam2Backend(BatchBackend):
+    """ISAM2 over a sliding window for the online estimates, batch LM for the final ones.
+
+    Online: GTSAM's ``IncrementalFixedLagSmoother`` keeps the last ``window``
+    frames (plus any earlier variable a new factor still touches: a keyframe in
+    use stays in the window); older frames are marginalized into a linear prior
+    on the window, so the estimate of the newest frame is the causal (filtered)
+    estimate of every measurement so far, and each update costs the same at
+    frame 1,000 and at frame 100,000. (One ISAM2 holding the whole sequence
+    costs O(number of frames) per update in GTSAM 4.3: each update destroys a
+    temporary Bayes tree whose destructor visits every clique;
+    docs/performance.md has a reproduction.)
+
+    Final (:meth:`final`): the whole graph, the same factors as the
+    ``"batch"`` solver's, solved by :func:`levenberg_marquardt` from the
+    window's estimates (each frame's value as it left the window), so the
+    smoothed trajectory and its marginals are the batch ones.
+
+    A factor that touches a variable already marginalized (a keyframe first
+    used after it left the window, a twist interval reaching that far back)
+    enters the window conditioned on that variable's estimate (linearized
+    there, its columns dropped); the final solve uses it unchanged.
+    """
+
+    solver = "isam2"
+
+    def __init__(
+        self,
+        params: gtsam.ISAM2Params,
+        *,
+        window: int,
+        max_iterations: int,
+        compute_covariance: bool,
+    ) -> None:
+        super().__init__(max_iterations=max_iterations, compute_covariance=compute_covariance)
+        #: Marginalization block (frames): stamps are frame counts rounded down to it.
+        self.block = max(1, window // MARGINALIZATION_BLOCKS)
+        # Half a block more than the window keeps "stamp < latest - lag" away from ties.
+        self.smoother_lag = float(window) + 0.5 * self.block
+        self.smoother = gtsam.IncrementalFixedLagSmoother(self.smoother_lag, params)
+        self.isam = self.smoother.getISAM2()
+        # Held so the custom factors' callbacks are not handed copies (module docstring).
+        self.theta = self.isam.getLinearizationPoint()
+        #: key -> stamp of every variable in the window.
+        self.live: dict[int, float] = {}
+        self._count = 0
+
+    def current_pose(self, index: int) -> gtsam.Pose3:
+        if X(index) in self.live:
+            return self.isam.calculateEstimatePose3(X(index))
+        return self.initial.atPose3(X(index))  # its estimate as it left the window
+
+    def add(
+        self,
+        graph: gtsam.NonlinearFactorGraph,
+        values: gtsam.Values,
+        index: int,
+        stamp_time: float,
+    ) -> FrameValues:
+        super().add(graph, values, index, stamp_time)
+        stamp = float(self._count // self.block * self.block)
+        self._count += 1
+        stamps = {X(index): stamp, V(index): stamp}
+        online = gtsam.NonlinearFactorGraph()
+        for i in range(graph.size()):
+            factor = graph.at(i)
+            keys = list(factor.keys())
+            gone = [key for key in keys if key not in self.live and not values.exists(key)]
+            if gone:
+                factor = self._conditioned(factor, keys, values)
+            else:  # every variable it touches stays in the window with the newest frame
+                stamps.update((key, stamp) for key in keys)
+            if factor is not None:
+                online.add(factor)
+        leaving = self._record_leaving(stamp)
+        self.smoother.update(online, values, stamps)
+        self.live.update(stamps)
+        for key in leaving:
+            if not self.isam.valueExists(key):
+                del self.live[key]
+        pose = self.isam.calculateEstimatePose3(X(index))
+        twist = self.isam.calculateEstimateVector(V(index))
+        return pose, twist, self.joint_covariance(index) if self.compute_covariance else None
+
+    def joint_covariance(self, index: int) -> np.ndarray:
+        """The 12x12 marginal covariance of [X(index) tangent; V(index)] in the window
+        (the frames marginalized before it included, as a linear prior)."""
+        return _symmetric(self.isam.jointMarginalCovariance([X(index), V(index)]).fullMatrix())
+
+    def _record_leaving(self, stamp: float) -> list[int]:
+        """Keep the estimate of every variable the coming update may marginalize
+        (as the final solve's initial value); return their keys."""
+        horizon = stamp - self.smoother_lag
+        leaving = [key for key, s in self.live.items() if s < horizon]
+        if leaving:
+            # A full back-substitution: the per-key estimates use ISAM2's wildfire-
+            # limited delta, which can be stale far from the root, where these are.
+            estimate = self.isam.calculateBestEstimate()
+            for key in leaving:
+                _copy_value(estimate, self.initial, key)
+        return leaving
+
+    def _conditioned(
+        self, factor: gtsam.NonlinearFactor, keys: list[int], values: gtsam.Values
+    ) -> gtsam.NonlinearFactor | None:
+        """The factor with its marginalized variables held at their estimates: linearized
+        at the current estimates, their Jacobian columns dropped (all variables are 6-D)."""
+        point = gtsam.Values()
+        kept = gtsam.Values()
+        for key in keys:
+            if values.exists(key):
+                source = values
+            elif key in self.live:
+                source = self.isam.calculateEstimate()
+            else:
+                source = self.initial
+            _copy_value(source, point, key)
+            if key in self.live or values.exists(key):
+                _copy_value(source, kept, key)
+        if kept.size() == 0:
+            return None
+        A, b = gtsam.JacobianFactor(factor.linearize(point)).jacobian()
+        blocks = [(key, A[:, 6 * j : 6 * j + 6]) for j, key in enumerate(keys) if kept.exists(key)]
+        unit = gtsam.noiseModel.Unit.Create(len(b))
+        if len(blocks) == 1:
+            linear = gtsam.JacobianFactor(*blocks[0], b, unit)
+        else:
+            (k1, A1), (k2, A2), *rest = blocks
+            if rest:
+                linear = gtsam.JacobianFactor(k1, A1, k2, A2, *rest[0], b, unit)
+            else:
+                linear = gtsam.JacobianFactor(k1, A1, k2, A2, b, unit)
+        return gtsam.LinearContainerFactor(linear, kept)
+
+    def final(self, indices: Sequence[int]) -> Iterator[FrameValues]:
+        if self._result is None and self.live:
+            estimate = self.isam.calculateBestEstimate()
+            for key in self.live:
+                _copy_value(estimate, self.initial, key)
+        return super().final(indices)
+
+
+def _copy_value(source: gtsam.Values, target: gtsam.Values, key: int) -> None:
+    """Set ``target``'s value of ``key`` (an X pose or a V twist) to ``source``'s."""
+    is_pose = gtsam.Symbol(key).chr() == ord("x")
+    value = source.atPose3(key) if is_pose else source.atVector(key)
+    if target.exists(key):
+        target.update(key, value)
+    else:
+        target.insert(key, value)
+
+
 def make_backend(
     solver: str,
     *,
@@ -371,8 +470,13 @@ def make_backend(
     params = isam2_params(
         relinearize_threshold,
         relinearize_skip,
-        find_unused_factor_slots=solver == FixedLagBackend.solver,
+        find_unused_factor_slots=True,  # both keep a window: reuse the freed slots
     )
     if solver == FixedLagBackend.solver:
         return FixedLagBackend(params, lag, compute_covariance=compute_covariance)
-    return Isam2Backend(params, compute_covariance=compute_covariance)
+    return Isam2Backend(
+        params,
+        window=ONLINE_WINDOW,
+        max_iterations=max_iterations,
+        compute_covariance=compute_covariance,
+    )

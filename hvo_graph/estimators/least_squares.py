@@ -1,0 +1,72 @@
+"""Levenberg-Marquardt on Python-owned ``gtsam.Values`` (the batch solve of the smoother)."""
+
+from __future__ import annotations
+
+import math
+
+import gtsam
+import numpy as np
+
+__all__ = ["levenberg_marquardt"]
+
+
+def levenberg_marquardt(
+    graph: gtsam.NonlinearFactorGraph,
+    initial: gtsam.Values,
+    *,
+    max_iterations: int = 100,
+    relative_tolerance: float = 1e-10,
+    absolute_tolerance: float = 1e-12,
+    initial_lambda: float = 1e-5,
+) -> tuple[gtsam.Values, int]:
+    """Minimize the graph's error with Levenberg-Marquardt (GTSAM's scheme, Python loop).
+
+    Each iteration linearizes the graph at the current values (Gauss-Newton
+    system J delta = -e), adds sqrt(lambda) I damping priors on every variable
+    (GTSAM's default, non-diagonal damping), solves with GTSAM's multifrontal
+    elimination, and retracts; a step that does not lower the error is retried
+    with lambda x 10, an accepted one divides lambda by 10. Stops when the
+    error decrease is below ``relative_tolerance * error + absolute_tolerance``.
+
+    Why not ``gtsam.LevenbergMarquardtOptimizer``: its iterates are C++
+    ``Values``, which pybind11 copies in full for every Python ``CustomFactor``
+    callback, making one iteration O(N^2) in the number of frames (34 s for
+    3,000 frames against 1 s here, where the iterates are Python-owned).
+
+    Args:
+        graph: the nonlinear factor graph.
+        initial: initial values of every variable.
+        max_iterations: most linearizations.
+        relative_tolerance, absolute_tolerance: convergence test on the error decrease.
+        initial_lambda: starting damping.
+    Returns:
+        (optimized values, iterations used).
+    """
+    values = gtsam.Values(initial)
+    error = graph.error(values)
+    zeros = values.zeroVectors()  # once: it is O(number of variables)
+    dims = [(key, zeros.at(key).size) for key in values.keys()]
+    units = {d: gtsam.noiseModel.Unit.Create(d) for _, d in dims}
+    eyes = {d: np.eye(d) for _, d in dims}
+    lam = initial_lambda
+    for iteration in range(1, max_iterations + 1):
+        linear = graph.linearize(values)
+        while True:
+            damped = gtsam.GaussianFactorGraph()
+            damped.push_back(linear)
+            root = math.sqrt(lam)
+            for key, d in dims:
+                damped.add(key, root * eyes[d], np.zeros(d), units[d])
+            candidate = values.retract(damped.optimize())
+            candidate_error = graph.error(candidate)
+            if candidate_error <= error:
+                lam = max(lam / 10.0, 1e-15)
+                break
+            lam *= 10.0
+            if lam > 1e10:  # no descent direction left: converged as far as it goes
+                return values, iteration
+        decrease = error - candidate_error
+        values, error = candidate, candidate_error
+        if decrease <= relative_tolerance * error + absolute_tolerance:
+            return values, iteration
+    return values, max_iterations
