@@ -378,8 +378,8 @@ def overview_figure(result: RunResult) -> Figure:
             )
         )
     fig.suptitle(
-        f"hvo_graph on the paper's {RUN_TITLES[result.run]}: smoother vs Kalman filter "
-        f"(one run, seed {result.scenario.config.seed}; means over seeds in docs/results.md)",
+        f"hvo_graph on the paper's {RUN_TITLES[result.run]}: smoother vs Kalman filter\n"
+        f"one run, seed {result.scenario.config.seed}; means over seeds in docs/results.md",
         fontsize=13,
         fontweight="bold",
     )
