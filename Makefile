@@ -44,9 +44,9 @@ figures: $(STAMP) ## regenerate docs/figures and the experiment tables (long)
 	$(BIN)/python experiments/paper_figures.py --out docs/figures
 	$(BIN)/python experiments/factor_graph_figure.py --out docs/figures
 	$(BIN)/python experiments/compare.py --out-dir docs
-	$(BIN)/python experiments/sweep.py
-	$(BIN)/python experiments/generalization.py
-	$(BIN)/python experiments/images.py
+	$(BIN)/python experiments/sweep.py --out-dir docs
+	$(BIN)/python experiments/generalization.py --out-dir docs
+	$(BIN)/python experiments/images.py --out-dir docs
 	$(BIN)/python experiments/benchmark.py
 
 # Real images for the tests (not in the repository): OpenCV's sample data from Debian's

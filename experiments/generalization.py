@@ -16,7 +16,7 @@ prints the tables.
 
 Usage::
 
-    python experiments/generalization.py                    # 16 seeds per family -> docs/
+    python experiments/generalization.py          # 16 seeds per family -> out/generalization/
     python experiments/generalization.py --families agile,hover --seeds 4
     python experiments/generalization.py --quick            # 2 seeds of 4 s -> out/
 """
@@ -52,7 +52,9 @@ DEFAULT_SEEDS = 16
 QUICK_SEEDS = 2
 QUICK_DURATION = 4.0
 ROOT = Path(__file__).resolve().parents[1]
-DEFAULT_OUT_DIR = ROOT / "docs"
+#: Outputs default to out/generalization/: the repository's docs/ is written only when asked
+#: (``--out-dir docs``, as ``make figures`` does).
+DEFAULT_OUT_DIR = ROOT / "out" / "generalization"
 QUICK_OUT_DIR = ROOT / "out" / "generalization-quick"
 
 #: The smoothed estimate the ratios are taken of, and what it is compared with.
@@ -89,6 +91,7 @@ def build_parser() -> argparse.ArgumentParser:
         quick_help=f"short run: {QUICK_SEEDS} seeds of {QUICK_DURATION:g} s unless given",
         quick_out="out/generalization-quick/",
         figures_option=False,
+        default_out="out/generalization/; make figures passes --out-dir docs",
     )
     return parser
 

@@ -33,7 +33,7 @@ Writes ``<out-dir>/images.md``, ``<out-dir>/figures/images_trajectory`` (.png,
 
 Usage::
 
-    python experiments/images.py              # 5 seeds of 15 s, 640 x 480 -> docs/
+    python experiments/images.py              # 5 seeds of 15 s, 640 x 480 -> out/images/
     python experiments/images.py --seeds 3 --duration 10
     python experiments/images.py --quick      # 1 seed of 4 s, 320 x 240 -> out/images-quick/
 """
@@ -82,9 +82,11 @@ from hvo_graph.sim.scenario import (
     default_camera,
 )
 
-#: The repository (outputs default to its docs/ folder, wherever the script is run from).
+#: The repository (outputs go under it, wherever the script is run from).
 ROOT = Path(__file__).resolve().parents[1]
-DEFAULT_OUT_DIR = ROOT / "docs"
+#: Outputs default to out/images/: the repository's docs/ is written only when asked
+#: (``--out-dir docs``, as ``make figures`` does).
+DEFAULT_OUT_DIR = ROOT / "out" / "images"
 QUICK_OUT_DIR = ROOT / "out" / "images-quick"
 
 DEFAULT_SEEDS = 5
@@ -371,6 +373,7 @@ def build_parser() -> argparse.ArgumentParser:
         parser,
         quick_help=f"1 seed of {QUICK_DURATION:g} s at 320 x 240 px (fx = 600 px) unless given",
         quick_out="out/images-quick/",
+        default_out="out/images/; make figures passes --out-dir docs",
         workers=False,
         figures_option=False,
     )

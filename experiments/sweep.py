@@ -20,7 +20,7 @@ prints the tables.
 
 Usage::
 
-    python experiments/sweep.py                      # 10 seeds per value -> docs/
+    python experiments/sweep.py                      # 10 seeds per value -> out/sweep/
     python experiments/sweep.py --only noise --seeds 5 --workers 2
     python experiments/sweep.py --quick              # 2 seeds of 4 s -> out/sweep-quick/
 """
@@ -54,9 +54,11 @@ from hvo_graph.sim.scenario import PAPER_NOISE_VAR, ScenarioConfig, paper_scenar
 
 DEFAULT_SEEDS = 10
 DEFAULT_DURATION = 10.0
-#: The repository (outputs default to its docs/ folder, wherever the script is run from).
+#: The repository (outputs go under it, wherever the script is run from).
 ROOT = Path(__file__).resolve().parents[1]
-DEFAULT_OUT_DIR = ROOT / "docs"
+#: Outputs default to out/sweep/: the repository's docs/ is written only when asked
+#: (``--out-dir docs``, as ``make figures`` does).
+DEFAULT_OUT_DIR = ROOT / "out" / "sweep"
 DEFAULT_METHODS = ("smoother", "kalman", "ippe")
 QUICK_SEEDS = 2
 QUICK_DURATION = 4.0
@@ -136,6 +138,7 @@ def build_parser() -> argparse.ArgumentParser:
         parser,
         quick_help=f"short run: {QUICK_SEEDS} seeds of {QUICK_DURATION:g} s unless given",
         quick_out="out/sweep-quick/",
+        default_out="out/sweep/; make figures passes --out-dir docs",
     )
     return parser
 
