@@ -79,14 +79,17 @@ class FactorRecord:
             _accumulate(factor, values, slot, out["motion_diagonal"], out["motion_upper"])
         for factor in self.fixed:
             _accumulate(factor, values, slot, out["fixed"], None)
-        measured = self.measurement + [s.factor for s in self.shared]
-        for factor in measured:
-            places = _accumulate(factor, values, slot, out["measurement"], out["measurement_upper"])
-            A, b = factor.linearize(values).jacobian()
+        jacobians = {}  # linearized once: the information, the gradient, the shared pull
+        for factor in self.measurement + [s.factor for s in self.shared]:
+            linear, places = _accumulate(
+                factor, values, slot, out["measurement"], out["measurement_upper"]
+            )
+            A, b = linear.jacobian()
+            jacobians[id(factor)] = A
             for n, offset, column in places:
                 out["gradient"][n, offset : offset + 6] += A[:, column : column + 6].T @ b
         for item in self.shared:
-            A, _ = item.factor.linearize(values).jacobian()
+            A = jacobians[id(item.factor)]
             ((n, offset),) = (slot[key] for key in item.factor.keys())
             response = A.T @ (item.whitening @ item.jacobian)  # (6, 2N)
             cols = np.ravel([[2 * columns[i], 2 * columns[i] + 1] for i in item.ids])
@@ -125,9 +128,10 @@ def _accumulate(
     slot: dict[int, tuple[int, int]],
     diagonal: np.ndarray,
     upper: np.ndarray | None,
-) -> list[tuple[int, int, int]]:
-    """Add the factor's information to the chain's blocks; its (frame, offset, column)
-    places (blocks on frames before the latest one's neighbour are left out)."""
+) -> tuple[gtsam.GaussianFactor, list[tuple[int, int, int]]]:
+    """Add the factor's information to the chain's blocks; the linearized factor and its
+    (frame, offset, column) places (blocks on frames before the latest one's neighbour
+    are left out)."""
     linear = factor.linearize(values)
     H = linear.information()
     places = [(*slot[key], 6 * i) for i, key in enumerate(linear.keys())]
@@ -140,4 +144,4 @@ def _accumulate(
                 diagonal[n1, o1 : o1 + 6, o2 : o2 + 6] += block
             elif n2 == n1 + 1 and upper is not None:
                 upper[n1, o1 : o1 + 6, o2 : o2 + 6] += block
-    return places
+    return linear, places
