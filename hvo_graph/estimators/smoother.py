@@ -32,15 +32,12 @@ and the reasons for every default):
 Solvers (one :class:`~hvo_graph.estimators.base.Estimator` interface; the back
 ends are in :mod:`hvo_graph.estimators.solvers`):
 
-- ``"isam2"`` (``--method smoother``): one ISAM2 update per frame; the online
-  estimate of frame k is the value right after its update, :meth:`trajectory`
-  the final (smoothed) values;
-- ``"batch"``: Levenberg-Marquardt over the whole graph when
-  :meth:`trajectory` is called; its online estimates are the initial values
-  (the frame's own measurement, or the motion-model prediction), i.e. unfused;
-- ``"fixed-lag"``: GTSAM's ``IncrementalFixedLagSmoother`` with a window of
-  ``lag`` seconds; :meth:`trajectory` gives each frame's value as it left the
-  window (or its current value).
+- ``"isam2"`` (``--method smoother``): online, ISAM2 over a sliding window (each
+  frame's value right after its update); :meth:`trajectory`, the batch optimum;
+- ``"batch"``: Levenberg-Marquardt over the whole graph; its online estimates
+  are the initial values (the frame's own measurement or the prediction);
+- ``"fixed-lag"``: GTSAM's ``IncrementalFixedLagSmoother`` (``lag`` seconds);
+  :meth:`trajectory` gives each frame's value as it left the window.
 """
 
 from __future__ import annotations
@@ -99,8 +96,7 @@ DEFAULT_ROBUST_THRESHOLD: float = math.sqrt(12.591587243743977)
 #: Standard deviation (rad, m) of the prior X(k0) = I that defines the world frame.
 DEFAULT_WORLD_SIGMA: float = 1e-6
 
-#: Standard deviation (rad, m) of the prior X(k0) = I until the first pose measurement
-#: says how well the reference frame is known (``shared_reference_noise``).
+#: Std (rad, m) of X(k0) = I until a pose tells the reference noise (shared_reference_noise).
 ANCHOR_START_SIGMA: float = 1.0
 
 #: Standard deviation (rad/s, m/s) of the zero-mean prior on the first twist V(k0).
@@ -215,6 +211,7 @@ class FactorGraphSmoother(Estimator):
         #: The factors by role, for the smoothed error covariance (with covariances).
         self.record: FactorRecord | None = FactorRecord() if self.compute_covariance else None
         self._anchored = False  # X(k0) has its prior from the reference frame's noise
+        self._anchor_covariance = np.zeros((6, 6))  # its latest marginal (online)
         self._anchor_start = gtsam.noiseModel.Isotropic.Sigma(6, ANCHOR_START_SIGMA)
         self._world_sigma = float(world_sigma)
         self._world_noise = gtsam.noiseModel.Isotropic.Sigma(
@@ -395,10 +392,13 @@ class FactorGraphSmoother(Estimator):
         values.insert(X(k), pose_guess)
         values.insert(V(k), twist_guess)
         pose, twist, covariance = self.backend.add(graph, values, k, t - self._times[0])
+        anchor = self.backend.current_pose(self._indices[0])
         if covariance is not None:
             covariance = self._with_reference_noise(len(self._indices) - 1, covariance)
+            if self._anchored:
+                covariance = self._with_anchor_noise(covariance, pose, anchor)
         self._pose, self._twist = pose, twist
-        pose = self._relative(pose, self.backend.current_pose(self._indices[0]))
+        pose = self._relative(pose, anchor)
         return StateEstimate(
             index=k,
             t=t,
@@ -417,6 +417,19 @@ class FactorGraphSmoother(Estimator):
         if nodes != [previous, k]:
             return False
         return poses_span(previous, self._pose_reference.get(previous), pose_meas[2])
+
+    def _with_anchor_noise(
+        self, covariance: np.ndarray, pose: gtsam.Pose3, anchor: gtsam.Pose3
+    ) -> np.ndarray:
+        """Online poses are relative to the anchor's current estimate, whose error the
+        marginal of X(k) does not carry: add the anchor's marginal, moved to X(k)."""
+        isam = getattr(self.backend, "isam", None)
+        if isam is not None and isam.valueExists(X(self._indices[0])):
+            self._anchor_covariance = isam.marginalCovariance(X(self._indices[0]))
+        Ad = pose.between(anchor).AdjointMap()
+        covariance = covariance.copy()
+        covariance[:6, :6] += Ad @ self._anchor_covariance @ Ad.T
+        return covariance
 
     def _relative(self, pose: gtsam.Pose3, anchor: gtsam.Pose3) -> gtsam.Pose3:
         """The pose in W: X_k = Y_0^-1 Y_k, with Y the graph's (anchored) poses."""
@@ -444,9 +457,7 @@ class FactorGraphSmoother(Estimator):
         # The back end's marginals are not the smoothed covariance (error_covariance).
         compute, self.backend.compute_covariance = self.backend.compute_covariance, False
         try:
-            finals = [
-                (pose, np.asarray(twist)) for pose, twist, _ in self.backend.final(self._indices)
-            ]
+            finals = [(p, np.asarray(v)) for p, v, _ in self.backend.final(self._indices)]
         finally:
             self.backend.compute_covariance = compute
         anchor = finals[0][0]
