@@ -455,11 +455,9 @@ class FactorGraphSmoother(Estimator):
         if n == 0:
             return Trajectory(np.empty(0), rotations, positions, twists, covariances)
         # The back end's marginals are not the smoothed covariance (error_covariance).
-        compute, self.backend.compute_covariance = self.backend.compute_covariance, False
-        try:
-            finals = [(p, np.asarray(v)) for p, v, _ in self.backend.final(self._indices)]
-        finally:
-            self.backend.compute_covariance = compute
+        finals = [
+            (p, np.asarray(v)) for p, v, _ in self.backend.final(self._indices, marginals=False)
+        ]
         anchor = finals[0][0]
         for i, (pose, twist) in enumerate(finals):
             relative = self._relative(pose, anchor)

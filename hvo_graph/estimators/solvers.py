@@ -114,8 +114,9 @@ class Backend(ABC):
         """
 
     @abstractmethod
-    def final(self, indices: Sequence[int]) -> Iterator[FrameValues]:
-        """The final values of the frames ``indices`` (every frame so far), in order."""
+    def final(self, indices: Sequence[int], *, marginals: bool = True) -> Iterator[FrameValues]:
+        """The final values of the frames ``indices`` (every frame so far), in order; with
+        ``marginals`` (and ``compute_covariance``) their Bayesian marginals too."""
 
 
 class IncrementalBackend(Backend):
@@ -161,13 +162,14 @@ class IncrementalBackend(Backend):
         twist = self.isam.calculateEstimateVector(V(index))
         return pose, twist, self.joint_covariance(index) if self.compute_covariance else None
 
-    def final(self, indices: Sequence[int]) -> Iterator[FrameValues]:
+    def final(self, indices: Sequence[int], *, marginals: bool = True) -> Iterator[FrameValues]:
         values = self.isam.calculateBestEstimate()
         for index in indices:
-            if index in self.frozen:
+            if index in self.frozen:  # its values (and marginal) as it left the window
                 yield self.frozen[index]
                 continue
-            cov = self.joint_covariance(index) if self.compute_covariance else None
+            wanted = self.compute_covariance and marginals
+            cov = self.joint_covariance(index) if wanted else None
             yield values.atPose3(X(index)), values.atVector(V(index)), cov
 
 
@@ -285,20 +287,20 @@ class BatchBackend(Backend):
             )
         return self._result
 
-    def final(self, indices: Sequence[int]) -> Iterator[FrameValues]:
+    def final(self, indices: Sequence[int], *, marginals: bool = True) -> Iterator[FrameValues]:
         values = self.values()
         # One ISAM2 elimination at the optimum gives the joint marginals quickly
         # (gtsam.Marginals took O(N) per query here); its linearization point is
         # held (second item) so the custom factors are not handed copies.
-        marginals: tuple[gtsam.ISAM2, gtsam.Values] | None = None
-        if self.compute_covariance:
+        elimination: tuple[gtsam.ISAM2, gtsam.Values] | None = None
+        if self.compute_covariance and marginals:
             isam = gtsam.ISAM2()
-            marginals = (isam, isam.getLinearizationPoint())
+            elimination = (isam, isam.getLinearizationPoint())
             isam.update(self.graph, values)
         for index in indices:
             cov = None
-            if marginals is not None:
-                c = marginals[0].jointMarginalCovariance([X(index), V(index)]).fullMatrix()
+            if elimination is not None:
+                c = elimination[0].jointMarginalCovariance([X(index), V(index)]).fullMatrix()
                 cov = _symmetric(c)
             yield values.atPose3(X(index)), values.atVector(V(index)), cov
 
@@ -437,12 +439,12 @@ class Isam2Backend(BatchBackend):
                 linear = gtsam.JacobianFactor(k1, A1, k2, A2, b, unit)
         return gtsam.LinearContainerFactor(linear, kept)
 
-    def final(self, indices: Sequence[int]) -> Iterator[FrameValues]:
+    def final(self, indices: Sequence[int], *, marginals: bool = True) -> Iterator[FrameValues]:
         if self._result is None and self.live:
             estimate = self.isam.calculateBestEstimate()
             for key in self.live:
                 _copy_value(estimate, self.initial, key)
-        return super().final(indices)
+        return super().final(indices, marginals=marginals)
 
 
 def _copy_value(source: gtsam.Values, target: gtsam.Values, key: int) -> None:
