@@ -243,7 +243,7 @@ def test_a_wide_baseline_jump_is_bridged_by_the_feature_homography(distortion):
     errors, motion = shared(TrackerConfig())
     assert len(errors) >= 60 and np.median(motion) > 100
     assert np.median(errors) < 0.1 and errors.max() < 1.0
-    plain, _ = shared(TrackerConfig(wide_baseline=False))
+    plain, _ = shared(TrackerConfig(wide_baseline=False, reidentify_frames=0))
     assert len(plain) < len(errors) / 4
 
 
@@ -454,5 +454,9 @@ def test_bad_arrays_times_and_settings(images):
         track_images([images[0] / 255.0], [0.0], CAMERA)
     with pytest.raises(InputError, match="min_tracked: expected at most max_features"):
         TrackerConfig(max_features=50, min_tracked=60)
+    with pytest.raises(InputError, match="wide_baseline: expected true or false, got 'no'"):
+        TrackerConfig(wide_baseline="no")
+    with pytest.raises(InputError, match=r"reidentify_frames: expected an integer >= 0, got -1"):
+        TrackerConfig(reidentify_frames=-1)
     with pytest.raises(InputError, match="fps: expected a number > 0"):
         load_image_sequence(".", fps=0.0)

@@ -34,11 +34,9 @@ tracks into pose (H_d) and velocity (H_c) measurements::
     tracks = tracks_from_images("images/", camera)
     frames = measure_sequence(tracks, camera, plane)
 
-Poses come from H_d between each frame and its reference: the first frame,
-or a later keyframe once the first frame's points have left the view
-(``FrontEndConfig.keyframe_min_points``); replenished points become usable
-for poses as soon as a keyframe that sees them is taken, and for the velocity
-(H_c, consecutive frames) at once.
+Poses come from H_d between each frame and its reference (the first frame, or
+a keyframe once its points have left the view: ``FrontEndConfig.keyframe_min_points``);
+replenished points serve poses once a keyframe sees them, velocities (H_c) at once.
 """
 
 from __future__ import annotations
@@ -172,15 +170,14 @@ class FeatureTracker:
     def _remember(self, keep: np.ndarray) -> None:
         """Keep the tracks this frame lost, when it lost most of them at once."""
         lost, frames = ~keep, self.config.reidentify_frames
-        if not frames or np.count_nonzero(keep) >= WIDE_BASELINE_FRACTION * len(keep):
-            return
-        if np.count_nonzero(lost) < MIN_MATCHES:
+        n = np.count_nonzero(lost)  # a loss: more than half the tracks, at least 8, at once
+        if not frames or n < MIN_MATCHES or n <= (1.0 - WIDE_BASELINE_FRACTION) * len(keep):
             return
         old = self._lost  # a larger loss still looked for is not replaced by a smaller one
-        if old is not None and self._index - old.index <= frames and len(old.ids) > lost.sum():
+        if old is not None and self._index - old.index <= frames and len(old.ids) > n:
             return
         births = [int(b) for b in np.unique(self._birth[lost])]
-        assert self._pinhole is not None
+        assert self._pinhole is not None  # set by the previous frame
         self._lost = LostTracks(
             self._index - 1, self._pinhole, self._found, self._ids[lost],
             pinhole_pixels(self.camera, self._points[lost]), self._birth[lost],
@@ -191,10 +188,12 @@ class FeatureTracker:
     def _reidentify(self, pinhole: np.ndarray, found: tuple[np.ndarray, np.ndarray] | None):
         """Resume the lost tracks found in this image under their old ids."""
         lost = self._lost
-        assert lost is not None
+        assert lost is not None  # the caller checks
         if self._index - lost.index > self.config.reidentify_frames:
             self._lost = None
             return
+        if lost.index == self._index - 1 and self.config.wide_baseline:
+            return  # the wide-baseline step has just tried this very pair
         result = find_again(lost, pinhole, found, self.camera, self.config)
         if result is None:
             return
