@@ -279,3 +279,21 @@ def test_the_real_views_as_one_sequence_through_estimate(tmp_path, references):
         R_est = gtsam.Rot3.Quaternion(qw, qx, qy, qz).matrix()
         assert rotation_angle_deg(R_est.T @ R_0k) < 0.5, name
         assert np.linalg.norm(row[1:4] - p_0k) < 0.01 * d, name
+
+
+def test_the_real_views_script_writes_its_table(tmp_path, monkeypatch, capsys):
+    """experiments/real_views.py on three of the views (6 pairs): the table's rows, each
+    within the thresholds the tests above assert on all views."""
+    from script_helpers import load_script
+
+    script = load_script("real_views")
+    monkeypatch.setattr(script, "VIEWS", VIEWS[:3])
+    assert script.main(["--out-dir", str(tmp_path)]) == 0
+    page = (tmp_path / "real_views.md").read_text()
+    assert capsys.readouterr().out.endswith(page)  # printed too
+    rows = [line.split("|") for line in page.splitlines() if line.startswith("| pairs")]
+    rows += [line.split("|") for line in page.splitlines() if line.startswith("| 3 views")]
+    assert [r[2].strip() for r in rows] == ["6", "6", "3"]
+    for row in rows:
+        assert float(row[3].split("/")[1]) < 0.5 and float(row[4].split("/")[1]) < 1.0
+    assert "graf1 -> graf3 through the images path:" in page
