@@ -75,12 +75,12 @@ class FeatureTracker:
 
     With a ``target`` (the chessboard, ChArUco or ArUco board that defines the
     plane, e.g. the one ``--plane auto`` measures n*, d* on) the board is looked
-    for in every image: new corners are detected only inside its outline (widened
-    by one square), so a static background never competes with it, and whenever it
-    is seen in two consecutive images the homography of its corners guides the
-    alignment of every track (a coarse start that cannot slip by a square, however
-    far the views are apart). The tracks remain the tracker's own Shi-Tomasi
-    corners aligned by Lucas-Kanade.
+    for in every image: new corners only inside its outline (widened by one square;
+    none where it is not found), so a static background never competes with it, and
+    when it is seen in two consecutive images the homography of its corners guides
+    the alignment of every track (a start that cannot slip by a square, however far
+    the views are apart). The tracks remain the tracker's own Shi-Tomasi corners
+    aligned by Lucas-Kanade.
 
     Attributes:
         camera: the camera (image size; distortion for the RANSAC check).
