@@ -108,7 +108,11 @@ def _lazy_exports(
 #: Old module path -> the modules its names moved to (searched in order). Kept for one
 #: release; docs/api.md lists the moves.
 _MOVED: dict[str, tuple[str, ...]] = {
-    "hvo_graph.tracking": ("hvo_graph.frontend.tracking", "hvo_graph.io.images"),
+    "hvo_graph.tracking": (
+        "hvo_graph.frontend.tracking",
+        "hvo_graph.frontend.tracker_config",
+        "hvo_graph.io.images",
+    ),
     "hvo_graph.simulation": ("hvo_graph.sim.scenario",),
     "hvo_graph.render": ("hvo_graph.sim.render",),
     "hvo_graph.evaluation": ("hvo_graph.eval.metrics",),

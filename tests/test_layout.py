@@ -14,7 +14,7 @@ import hvo_graph
 #: Old path -> {name: new module}, one or more names per moved module.
 MOVED = {
     "hvo_graph.tracking": {
-        "TrackerConfig": "hvo_graph.frontend.tracking",
+        "TrackerConfig": "hvo_graph.frontend.tracker_config",
         "track_images": "hvo_graph.frontend.tracking",
         "tracks_from_images": "hvo_graph.frontend.tracking",
         "load_image_sequence": "hvo_graph.io.images",

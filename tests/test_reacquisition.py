@@ -1,9 +1,13 @@
-"""The images path after a loss: re-acquisition, and a run that says when the pose was lost.
+"""The images path after a loss: re-identification, re-acquisition, and a run that says
+when the pose was lost.
 
 A rendered sequence (the image experiment's motion, 320 x 240) with a motion-blur
-passage: every track is lost in the blurred frames, the tracker re-detects, and the
-front end must pick the pose up again against a new reference instead of coasting
-on the motion model for the rest of the sequence. Ground truth is the rendering's.
+passage, or with the camera looking at a blank wall for a while: every track is
+lost there. When the plane comes back into view the tracker finds its lost tracks
+again (re-identification: same ids, so poses are measured against frame 0 again);
+with that turned off it re-detects, and the front end must pick the pose up against
+a new reference (re-acquisition) instead of coasting on the motion model for the
+rest of the sequence. Ground truth is the rendering's.
 """
 
 from __future__ import annotations
@@ -19,7 +23,7 @@ import pytest
 from hvo_graph.eval.metrics import error_series
 from hvo_graph.frontend import measure_sequence
 from hvo_graph.frontend.health import MAX_FRACTION_WITHOUT_POSE, front_end_health
-from hvo_graph.frontend.tracking import track_images
+from hvo_graph.frontend.tracking import TrackerConfig, track_images
 from hvo_graph.geometry.camera import CameraModel
 from hvo_graph.image_runs import ImageRunConfig
 from hvo_graph.io.config import SceneConfig
@@ -37,7 +41,7 @@ def motion_blur(image: np.ndarray) -> np.ndarray:
     return cv2.filter2D(cv2.GaussianBlur(image, (0, 0), 6), -1, kernel)
 
 
-def rendered_run(edit):
+def rendered_run(edit, tracker: TrackerConfig | None = None):
     """The image experiment's motion (seed 1, 4 s), rendered, ``edit``-ed in place, tracked
     and estimated by the smoother: (truth, tracks, EstimateRun)."""
     config = ImageRunConfig(seed=1, duration=4.0, camera=CAMERA)
@@ -46,18 +50,41 @@ def rendered_run(edit):
     texture = plane_texture(CAMERA, 1)
     images = list(render_stream(CAMERA, motion.plane, truth, texture, noise_sigma=2.0, seed=1))
     edit(images)
-    tracks = track_images(images, truth.t, CAMERA)
+    tracks = track_images(images, truth.t, CAMERA, tracker)
     scene = SceneConfig(CAMERA, motion.plane, 0.1)
     return truth, tracks, run_estimate(tracks, scene, "smoother", ransac_threshold_px=2.0)
 
 
+def blur(images):
+    for k in BLURRED:
+        images[k] = motion_blur(images[k])
+
+
+def blank(images):
+    """The camera looks at a blank wall: no texture at all."""
+    for k in BLURRED:
+        images[k] = np.full_like(images[k], 128)
+
+
 @pytest.fixture(scope="module")
 def blurred_run():
-    def blur(images):
-        for k in BLURRED:
-            images[k] = motion_blur(images[k])
+    """Re-identification off: what happens when the old points are not found again."""
+    return rendered_run(blur, TrackerConfig(reidentify_frames=0))
 
-    return rendered_run(blur)
+
+@pytest.mark.parametrize("edit", [blur, blank], ids=["motion-blur", "blank-view"])
+def test_lost_tracks_are_reidentified_and_the_pose_returns_to_frame_0(edit):
+    truth, tracks, run = rendered_run(edit)
+    end = BLURRED[-1] + 1
+    before = set(tracks[BLURRED[0] - 1].ids.tolist())
+    assert not before & set(tracks[BLURRED[0]].ids.tolist())  # all lost in the passage
+    assert len(before & set(tracks[end].ids.tolist())) >= 0.8 * len(before)  # found again
+    # The points seen again are frame 0's: every pose after the passage is measured
+    # against frame 0 itself, not against a new reference tied to it through the gap.
+    assert all(f.pose is not None and f.pose.reference == 0 for f in run.frames[end:])
+    errors = error_series(run.trajectory, truth)
+    assert errors.position[end:].max() < 0.005 and errors.orientation[end:].max() < 0.1
+    assert front_end_health(run.frames).warnings() == []
 
 
 def test_a_sudden_lighting_change_keeps_the_pose():
@@ -101,7 +128,8 @@ def test_the_pose_is_reacquired_after_the_blur(blurred_run):
 
 
 def test_without_reacquisition_the_health_report_warns(blurred_run):
-    # Keyframes off: the front end stays on frame 0, whose points are gone after the blur.
+    # Keyframes off: the front end stays on frame 0, whose points are gone after the blur
+    # (not re-identified here).
     _, tracks, _ = blurred_run
     plane = ImageRunConfig(seed=1, duration=4.0, camera=CAMERA).motion().plane
     frames = measure_sequence(

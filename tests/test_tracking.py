@@ -221,6 +221,32 @@ def test_plain_frame_to_frame_klt_stays_within_a_third_of_a_pixel(images):
     assert np.mean(errors > 1.0) < 0.05
 
 
+@pytest.mark.parametrize("distortion", [None, [-0.25, 0.08, 0.0, 0.0, 0.0]])
+def test_a_wide_baseline_jump_is_bridged_by_the_feature_homography(distortion):
+    """Two views 25 degrees and 0.6 m apart (the content moves by ~150 px): frame-to-frame
+    KLT loses the tracks; the wide-baseline step (SIFT + MAGSAC, then the tracker's own
+    corners aligned under that homography) keeps them at their true projections."""
+    dist = np.zeros(5) if distortion is None else np.array(distortion)
+    camera = CameraModel(CAMERA.fx, CAMERA.fy, CAMERA.cx, CAMERA.cy, 320, 240, dist)
+    far = gtsam.Pose3(gtsam.Rot3.Ypr(0.35, 0.2, 0.1), np.array([0.6, -0.2, 0.2]))
+    poses = [gtsam.Pose3(), far]
+    views = render_plane_images(camera, PLANE, poses, noise_sigma=1.0, seed=5)
+
+    def shared(config):
+        first, second = track_images(views, [0.0, 1.0], camera, config)
+        _, ia, ib = np.intersect1d(first.ids, second.ids, return_indices=True)
+        X = [back_project(poses[0], uv, camera) for uv in first.uv[ia]]
+        moved = np.array([project(far, x, camera) for x in X]).reshape(-1, 2)
+        motion = np.linalg.norm(moved - first.uv[ia], axis=1)
+        return np.linalg.norm(moved - second.uv[ib], axis=1), motion
+
+    errors, motion = shared(TrackerConfig())
+    assert len(errors) >= 60 and np.median(motion) > 100
+    assert np.median(errors) < 0.1 and errors.max() < 1.0
+    plain, _ = shared(TrackerConfig(wide_baseline=False, reidentify_frames=0))
+    assert len(plain) < len(errors) / 4
+
+
 def test_ids_are_stable_and_tracks_are_replenished(tracks):
     config = TrackerConfig()
     seen_in: dict[int, list[int]] = {}
@@ -428,5 +454,9 @@ def test_bad_arrays_times_and_settings(images):
         track_images([images[0] / 255.0], [0.0], CAMERA)
     with pytest.raises(InputError, match="min_tracked: expected at most max_features"):
         TrackerConfig(max_features=50, min_tracked=60)
+    with pytest.raises(InputError, match="wide_baseline: expected true or false, got 'no'"):
+        TrackerConfig(wide_baseline="no")
+    with pytest.raises(InputError, match=r"reidentify_frames: expected an integer >= 0, got -1"):
+        TrackerConfig(reidentify_frames=-1)
     with pytest.raises(InputError, match="fps: expected a number > 0"):
         load_image_sequence(".", fps=0.0)

@@ -74,6 +74,7 @@ def scene_from_arguments(args: argparse.Namespace, recording: Recording | None) 
 def track_recording(
     args: argparse.Namespace, scene: SceneConfig, recording: Recording
 ) -> list[FrameObservations]:
+    from hvo_graph.frontend.target import parse_target
     from hvo_graph.frontend.tracking import TrackerConfig, track_images
     from hvo_graph.io.images import check_camera_size
     from hvo_graph.report.progress import ProgressBar
@@ -94,7 +95,10 @@ def track_recording(
         enabled=sys.stderr.isatty(),
         rate_unit="frames",
     ) as bar:
-        return track_images(_Counted(recording.frames, bar), recording.times, scene.camera, config)
+        # --plane auto: the target defines the plane, so the tracker follows it alone.
+        target = parse_target(args.target) if getattr(args, "plane", None) == "auto" else None
+        frames = _Counted(recording.frames, bar)
+        return track_images(frames, recording.times, scene.camera, config, target)
 
 
 #: How the progress note names each layout of hvo_graph.io.sequences.

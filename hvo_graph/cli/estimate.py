@@ -213,7 +213,8 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
         metavar="SPEC",
         default=None,
         help="with --plane auto: chessboard:COLSxROWS:SQUARE, "
-        "charuco:COLSxROWS:SQUARE:MARKER:DICT or aruco:COLSxROWS:MARKER:GAP:DICT",
+        "charuco:COLSxROWS:SQUARE:MARKER:DICT or aruco:COLSxROWS:MARKER:GAP:DICT; "
+        "features are then tracked on the board only",
     )
 
     est.set_defaults(handler=run)

@@ -39,16 +39,16 @@ import numpy as np
 
 from hvo_graph.errors import InputError
 from hvo_graph.frontend.tracking import TrackerConfig
+from hvo_graph.frontend.wide_baseline import (
+    MIN_MATCHES,
+    feature_homography,
+    guided_alignment,
+    pinhole_image,
+    raw_pixels,
+)
 from hvo_graph.geometry.camera import CameraModel
 from hvo_graph.io.images import as_gray_image
 from hvo_graph.types import FrameObservations
-
-#: Lowe's ratio: a SIFT match is kept when its distance is below this times the second best.
-RATIO = 0.8
-#: Inlier threshold of the SIFT homography, pixels (the keypoints are coarse).
-SIFT_RANSAC_PX = 3.0
-#: Fewest consistent matches for a pair.
-MIN_MATCHES = 8
 
 
 @dataclass(frozen=True)
@@ -77,41 +77,6 @@ class PairMatches:
         ]
 
 
-def _pinhole(camera: CameraModel | None, image: np.ndarray) -> np.ndarray:
-    """The image as an ideal pinhole camera with the same K would see it (plane points then
-    map by a homography); unchanged without distortion."""
-    if camera is None or not camera.has_distortion:
-        return image
-    return cv2.undistort(image, camera.K, camera.distortion)
-
-
-def _raw(camera: CameraModel | None, uv: np.ndarray) -> np.ndarray:
-    """Pinhole pixels back to the camera's raw (distorted) pixels."""
-    if camera is None or not camera.has_distortion:
-        return uv
-    m = np.column_stack(((uv[:, 0] - camera.cx) / camera.fx, (uv[:, 1] - camera.cy) / camera.fy))
-    return camera.normalized_to_pixel(m)
-
-
-def _sift_homography(a: np.ndarray, b: np.ndarray) -> tuple[np.ndarray, int]:
-    sift = cv2.SIFT_create()
-    ka, da = sift.detectAndCompute(a, None)
-    kb, db = sift.detectAndCompute(b, None)
-    if da is None or db is None or len(ka) < 2 or len(kb) < 2:
-        raise InputError("images: too little texture for a wide-baseline match")
-    pairs = cv2.BFMatcher(cv2.NORM_L2).knnMatch(da, db, k=2)
-    good = [p[0] for p in pairs if len(p) == 2 and p[0].distance < RATIO * p[1].distance]
-    if len(good) < MIN_MATCHES:
-        raise InputError(f"images: only {len(good)} distinctive matches between the two images")
-    pa = np.array([ka[m.queryIdx].pt for m in good])
-    pb = np.array([kb[m.trainIdx].pt for m in good])
-    H, inliers = cv2.findHomography(pa, pb, cv2.USAC_MAGSAC, SIFT_RANSAC_PX)
-    count = 0 if inliers is None else int(inliers.sum())
-    if H is None or count < MIN_MATCHES:
-        raise InputError(f"images: only {count} matches agree on one plane")
-    return H, count
-
-
 def match_pair(
     image_a: np.ndarray,
     image_b: np.ndarray,
@@ -136,10 +101,10 @@ def match_pair(
         InputError: too few distinctive or consistent matches.
     """
     c = config or TrackerConfig()
-    a = _pinhole(camera, as_gray_image(image_a, "image_a", camera))
-    b = _pinhole(camera, as_gray_image(image_b, "image_b", camera))
+    a = pinhole_image(camera, as_gray_image(image_a, "image_a", camera))
+    b = pinhole_image(camera, as_gray_image(image_b, "image_b", camera))
     if initial_homography is None:
-        H0, sift_count = _sift_homography(a, b)
+        H0, sift_count = feature_homography(a, b)
     else:
         H0, sift_count = np.asarray(initial_homography, dtype=float).reshape(3, 3), 0
     corners = cv2.goodFeaturesToTrack(
@@ -148,11 +113,10 @@ def match_pair(
     if corners is None:
         raise InputError("image_a: no corners to match")
     uv_a = corners.reshape(-1, 2).astype(np.float64)
-    warped = cv2.warpPerspective(
-        a, H0, (b.shape[1], b.shape[0]), flags=cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE
-    )
-    predicted = cv2.perspectiveTransform(uv_a.reshape(-1, 1, 2), H0).reshape(-1, 2)
-    uv_b, ok = _aligned(warped, b, predicted.astype(np.float32), c)
+    uv_b, ok = guided_alignment(
+        a, b, uv_a, H0, window=c.lk_window, levels=min(c.lk_levels, 2),
+        iterations=c.lk_iterations, epsilon=c.lk_epsilon, fb_threshold_px=c.fb_threshold_px,
+    )  # fmt: skip
     size = np.array([b.shape[1], b.shape[0]])
     margin = c.border_margin_px
     ok &= np.all((uv_b >= margin - 0.5) & (uv_b <= size - 0.5 - margin), axis=1)
@@ -164,27 +128,6 @@ def match_pair(
     if H is None or int(inliers.sum()) < MIN_MATCHES:
         raise InputError("images: the aligned corners agree on no plane")
     keep = idx[inliers.ravel() > 0]
-    return PairMatches(_raw(camera, uv_a[keep]), _raw(camera, uv_b[keep]), H, sift_count)
-
-
-def _aligned(
-    warped: np.ndarray, target: np.ndarray, predicted: np.ndarray, c: TrackerConfig
-) -> tuple[np.ndarray, np.ndarray]:
-    """Lucas-Kanade warped -> target from the prediction, with the forward-backward check."""
-    criteria = (cv2.TERM_CRITERIA_COUNT | cv2.TERM_CRITERIA_EPS, c.lk_iterations, c.lk_epsilon)
-    window = (c.lk_window, c.lk_window)
-    start = predicted.reshape(-1, 1, 2)
-    flags = cv2.OPTFLOW_USE_INITIAL_FLOW
-    levels = min(c.lk_levels, 2)  # the prediction is close: a short pyramid suffices
-    moved, st, _ = cv2.calcOpticalFlowPyrLK(
-        warped, target, start, start.copy(), winSize=window, maxLevel=levels,
-        criteria=criteria, flags=flags,
-    )  # fmt: skip
-    back, st_back, _ = cv2.calcOpticalFlowPyrLK(
-        target, warped, moved, moved.copy(), winSize=window, maxLevel=levels,
-        criteria=criteria, flags=flags,
-    )  # fmt: skip
-    moved, back = moved.reshape(-1, 2), back.reshape(-1, 2)
-    fb = np.linalg.norm(back - predicted, axis=1)
-    ok = (st.ravel() == 1) & (st_back.ravel() == 1) & (fb < c.fb_threshold_px)
-    return moved.astype(np.float64), ok & np.all(np.isfinite(moved), axis=1)
+    return PairMatches(
+        raw_pixels(camera, uv_a[keep]), raw_pixels(camera, uv_b[keep]), H, sift_count
+    )

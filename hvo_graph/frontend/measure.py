@@ -191,6 +191,7 @@ class MeasurementFrontEnd:
         self.config = config or FrontEndConfig()
         self._sigma = max(self.config.pixel_sigma, MIN_PIXEL_SIGMA) / camera.mean_focal
         self._reference: TrackedFrame | None = None
+        self._earlier: list[TrackedFrame] = []  # former references (re-identified tracks)
         self._previous: TrackedFrame | None = None
         self._normal: np.ndarray | None = None if plane.normal is None else plane.normal
         if self.config.pose_solver == "ippe" and self._normal is None:
@@ -236,7 +237,7 @@ class MeasurementFrontEnd:
         if pose is None and R is not None and lost and limit and len(ids) >= limit:
             # Re-acquisition: a new reference at its predicted pose; the estimators re-place
             # the plane at their own estimate of it (keyframe plane Jacobian).
-            self._reference = frame
+            self._move_reference(frame)
         self._previous = frame
         rejected = self._rejected_now + len(obs.ids) - len(ids)
         return FrameMeasurement(obs.index, obs.t, pose, velocity, len(obs.ids), rejected)
@@ -267,8 +268,9 @@ class MeasurementFrontEnd:
         """
         assert self._reference is not None
         m_ref, m_cur, shared = common_points(self._reference, ids, m, with_ids=True)
-        if self._switch_keyframe(len(m_ref), ids, m):
-            self._reference = self._previous
+        earlier = self._earlier_reference(len(m_ref), ids)
+        if earlier is not None or self._switch_keyframe(len(m_ref), ids, m):
+            self._move_reference(earlier or self._previous)
             m_ref, m_cur, shared = common_points(self._reference, ids, m, with_ids=True)
         ref = self._reference
         if len(m_ref) < self.config.min_points or any(
@@ -361,6 +363,25 @@ class MeasurementFrontEnd:
         if limit is None or len(m_ref) < ROBUST_MIN_POINTS:
             return np.ones(len(m_ref), dtype=bool)
         return transfer_chi2(R, T, m_ref, m_cur, plane, self._sigma, info) <= limit
+
+    def _move_reference(self, frame: TrackedFrame | None) -> None:
+        assert frame is not None and self._reference is not None
+        self._earlier = [f for f in self._earlier if f.index != frame.index][-15:]
+        self._earlier.append(self._reference)
+        self._reference = frame
+
+    def _earlier_reference(
+        self, shared_with_reference: int, ids: np.ndarray
+    ) -> TrackedFrame | None:
+        """A former reference that sees the current points again (the tracker re-identified
+        them after a loss) when the reference has too few: the one sharing the most, at
+        least ``keyframe_min_points`` (``min_points`` without keyframes)."""
+        need = max(self.config.min_points, self.config.keyframe_min_points or 0)
+        if shared_with_reference >= need or not self._earlier:
+            return None
+        counts = [len(np.intersect1d(f.ids, ids, assume_unique=True)) for f in self._earlier]
+        best = int(np.argmax(counts))
+        return self._earlier[best] if counts[best] >= need else None
 
     def _switch_keyframe(self, shared_with_reference: int, ids: np.ndarray, m: np.ndarray) -> bool:
         """Make the previous frame the reference when it sees clearly more of the current points.

@@ -197,6 +197,13 @@ def detect_target(image: np.ndarray, spec: TargetSpec) -> tuple[np.ndarray, np.n
     return pixels.reshape(-1, 2).astype(float), objects.reshape(-1, 3).astype(float)
 
 
+def board_margin(spec: TargetSpec) -> float:
+    """How far the board's plane reaches beyond the points :func:`detect_target` finds,
+    metres: one square around a chessboard's or ChArUco board's inner corners, the gap
+    around an ArUco grid's marker corners."""
+    return float(spec.gap or 0.0) if spec.kind == "aruco" else float(spec.square)
+
+
 def board_pose(
     image_points: np.ndarray, object_points: np.ndarray, camera: CameraModel
 ) -> TargetPose:

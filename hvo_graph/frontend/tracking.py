@@ -3,28 +3,27 @@
 Images come from arrays or from disk (:func:`hvo_graph.io.sequences.open_recording`
 reads image folders, videos, TUM RGB-D, EuRoC and ROS bags).
 
-The paper's future work (NOTES section 7) is running on real images with fast
-feature detection and tracking. This module does that with OpenCV's KLT
-tracker:
+The paper's future work (NOTES section 7): real images, with OpenCV's KLT tracker:
 
 - **detection**: Shi-Tomasi corners (``cv2.goodFeaturesToTrack``), away from
-  the image border and from existing tracks;
+  the image border and from existing tracks (with a target: on the board only);
 - **tracking**: pyramidal Lucas-Kanade (``cv2.calcOpticalFlowPyrLK``) from
-  frame k-1 to frame k, kept only when tracking the result back to frame k-1
-  lands within ``fb_threshold_px`` of the start (forward-backward check);
-- **plane consistency**: a RANSAC homography between consecutive frames
-  (``cv2.findHomography``), in undistorted pixels, drops tracks that do not
-  move with the dominant plane (m_k ~ H m_{k-1} holds for plane points only);
+  frame k-1 to frame k with a forward-backward check (``fb_threshold_px``);
+- **wide baseline** (``wide_baseline``, or a target seen in both frames): a
+  coarse plane homography guides the alignment when KLT cannot follow
+  (:mod:`hvo_graph.frontend.wide_baseline`);
+- **plane consistency**: a RANSAC homography between consecutive frames, in
+  undistorted pixels, drops tracks that do not move with the dominant plane;
 - **re-alignment** (``refine_max_px``): each track is aligned once more
   against the image where it was first seen, warped into the current view by
-  the plane homography. Frame-to-frame KLT drifts (its translation-only
-  window is biased by the perspective deformation of the patch, and the bias
-  adds up); the re-aligned track does not. On the rendered test sequence
-  (320x240, 60 frames) this takes the median error of the tracks from
-  ~0.2 px (growing to ~0.9 px after 40 frames) to ~0.01 px at any age;
+  the plane homography, so frame-to-frame drift does not add up (on the
+  rendered test sequence, 320x240, 60 frames: median error ~0.01 px at any age
+  instead of ~0.2 px growing to ~0.9 px);
 - **replenishment**: when fewer than ``min_tracked`` tracks remain, new
-  corners get new ids, so an id always names one physical point and a lost
-  id never comes back.
+  corners get new ids, so an id always names one physical point;
+- **re-identification** (``reidentify_frames``): tracks lost together are
+  looked for again and resume under their old ids
+  (:mod:`hvo_graph.frontend.reidentify`).
 
 Tracks are raw (distorted) pixels, as in tracks.csv: undistortion belongs to
 the measurement front end (:mod:`hvo_graph.frontend.measure`), which turns these
@@ -35,23 +34,33 @@ tracks into pose (H_d) and velocity (H_c) measurements::
     tracks = tracks_from_images("images/", camera)
     frames = measure_sequence(tracks, camera, plane)
 
-Poses come from H_d between each frame and its reference: the first frame,
-or a later keyframe once the first frame's points have left the view
-(``FrontEndConfig.keyframe_min_points``); replenished points become usable
-for poses as soon as a keyframe that sees them is taken, and for the velocity
-(H_c, consecutive frames) at once.
+Poses come from H_d between each frame and its reference (the first frame, or
+a keyframe once its points have left the view: ``FrontEndConfig.keyframe_min_points``);
+replenished points serve poses once a keyframe sees them, velocities (H_c) at once.
 """
 
 from __future__ import annotations
 
 from collections.abc import Iterable, Sequence
-from dataclasses import dataclass
 from pathlib import Path
 
 import cv2
 import numpy as np
 
-from hvo_graph.errors import InputError, as_integer, as_number
+from hvo_graph.errors import InputError
+from hvo_graph.frontend.reidentify import LostTracks, find_again
+from hvo_graph.frontend.target import TargetSpec, board_margin, detect_target
+from hvo_graph.frontend.tracker_config import WIDE_BASELINE_FRACTION, TrackerConfig
+from hvo_graph.frontend.wide_baseline import (
+    MIN_MATCHES,
+    feature_homography,
+    guided_alignment,
+    pinhole_image,
+    pinhole_pixels,
+    raw_pixels,
+    target_homography,
+    target_outline,
+)
 from hvo_graph.geometry.camera import CameraModel
 from hvo_graph.io.images import as_gray_image
 from hvo_graph.io.sequences import open_recording
@@ -61,97 +70,49 @@ from hvo_graph.types import FrameObservations
 _MIN_GROUP_FIT = 8
 
 
-@dataclass(frozen=True)
-class TrackerConfig:
-    """KLT tracker settings.
-
-    Attributes:
-        max_features: most tracks alive at once.
-        quality_level: Shi-Tomasi threshold relative to the strongest corner
-            (``cv2.goodFeaturesToTrack``'s qualityLevel).
-        min_distance: smallest distance between a new corner and any other
-            corner or live track, pixels.
-        block_size: corner detection window, pixels.
-        lk_window: side of the Lucas-Kanade window, pixels.
-        lk_levels: pyramid levels above the full image (0: no pyramid).
-        lk_iterations: most Lucas-Kanade iterations per level.
-        lk_epsilon: Lucas-Kanade convergence threshold, pixels.
-        fb_threshold_px: largest forward-backward error of a kept track, pixels.
-        min_tracked: detect new corners when fewer tracks remain (0: detect in
-            the first frame only).
-        ransac_threshold_px: inlier threshold of the frame-to-frame homography
-            RANSAC, undistorted pixels; None keeps every tracked point.
-        border_margin_px: tracks closer than this to the border are dropped and
-            no corner is detected there, pixels.
-        refine_max_px: re-align every track against the image where it was
-            first seen, warped by the plane homography (stops the drift of
-            frame-to-frame KLT); tracks the re-alignment moves by more than
-            this many pixels are dropped. None: plain frame-to-frame KLT.
-    """
-
-    max_features: int = 200
-    quality_level: float = 0.01
-    min_distance: float = 10.0
-    block_size: int = 7
-    lk_window: int = 21
-    lk_levels: int = 3
-    lk_iterations: int = 30
-    lk_epsilon: float = 0.01
-    fb_threshold_px: float = 0.5
-    min_tracked: int = 100
-    ransac_threshold_px: float | None = 1.0
-    border_margin_px: float = 8.0
-    refine_max_px: float | None = 1.0
-
-    def __post_init__(self) -> None:
-        for name, minimum in (
-            ("max_features", 1),
-            ("block_size", 3),
-            ("lk_window", 3),
-            ("lk_levels", 0),
-            ("lk_iterations", 1),
-            ("min_tracked", 0),
-        ):
-            as_integer(getattr(self, name), name, minimum)
-        if self.min_tracked > self.max_features:
-            raise InputError(
-                f"min_tracked: expected at most max_features ({self.max_features}), "
-                f"got {self.min_tracked}"
-            )
-        if not 0 < self.quality_level < 1:
-            raise InputError(
-                f"quality_level: expected a number in (0, 1), got {self.quality_level}"
-            )
-        for name in ("lk_epsilon", "fb_threshold_px"):
-            as_number(getattr(self, name), name, above=0.0)
-        for name in ("min_distance", "border_margin_px"):
-            as_number(getattr(self, name), name, at_least=0.0)
-        for name in ("ransac_threshold_px", "refine_max_px"):
-            if getattr(self, name) is not None:
-                as_number(getattr(self, name), name, above=0.0)
-
-
 class FeatureTracker:
     """Streaming KLT tracker: one :meth:`process` call per image, in time order.
+
+    With a ``target`` (the chessboard, ChArUco or ArUco board that defines the
+    plane, e.g. the one ``--plane auto`` measures n*, d* on) the board is looked
+    for in every image: new corners only inside its outline (widened by one square;
+    none where it is not found), so a static background never competes with it, and
+    when it is seen in two consecutive images the homography of its corners guides
+    the alignment of every track (a start that cannot slip by a square, however far
+    the views are apart). The tracks remain the tracker's own Shi-Tomasi corners
+    aligned by Lucas-Kanade.
 
     Attributes:
         camera: the camera (image size; distortion for the RANSAC check).
         config: tracker settings.
+        target: the board that defines the plane, or None.
     """
 
-    def __init__(self, camera: CameraModel, config: TrackerConfig | None = None):
+    def __init__(
+        self,
+        camera: CameraModel,
+        config: TrackerConfig | None = None,
+        target: TargetSpec | None = None,
+    ):
         self.camera = camera
         self.config = config or TrackerConfig()
+        self.target = target
+        # The target's corners in the last image (raw pixels, board points), or None.
+        self._found: tuple[np.ndarray, np.ndarray] | None = None
         self._index = 0
         self._t: float | None = None
         self._image: np.ndarray | None = None
-        # Live tracks: position in the last image, id, frame of first sight, position there.
+        self._pinhole: np.ndarray | None = None  # the last image undistorted
+        self._lost: LostTracks | None = None  # tracks lost together, still looked for
+        # Live tracks: position in the last image (raw pixels), id, frame of first sight,
+        # position there (pinhole pixels).
         self._points = np.empty((0, 2), dtype=np.float32)
         self._ids = np.empty(0, dtype=np.int64)
         self._birth = np.empty(0, dtype=np.int64)
         self._birth_uv = np.empty((0, 2), dtype=np.float32)
         self._birth_images: dict[int, np.ndarray] = {}
-        # Per first-sight frame b: homography from image b to the last image (raw pixels).
+        # Per first-sight frame b: image b undistorted, and the homography from it to the
+        # last image (pinhole pixels).
         self._warps: dict[int, np.ndarray] = {}
         self._next_id = 0
         c = self.config
@@ -178,14 +139,20 @@ class FeatureTracker:
             raise InputError(f"{name}: expected a finite time, got {t}")
         if self._t is not None and not t > self._t:
             raise InputError(f"{name}: time {t} does not increase (previous {self._t})")
+        found = detect_target(gray, self.target) if self.target is not None else None
+        pinhole = pinhole_image(self.camera, gray)
         if self._image is not None and len(self._points):
-            keep, points = self._track(self._image, gray, self._points)
+            keep, points = self._follow(gray, pinhole, self._points, found)
             if self.config.refine_max_px is not None:
-                keep, points = self._realign(gray, keep, self._points, points)
+                keep, points = self._realign(pinhole, keep, self._points, points)
+            self._remember(keep)
             self._select(keep)
             self._points = points[keep]
+        if self._lost is not None:
+            self._reidentify(pinhole, found)
         if len(self._points) < self.config.min_tracked or self._image is None:
-            self._replenish(gray)
+            self._replenish(gray, pinhole, found)
+        self._found, self._pinhole = found, pinhole
         # Keep first images only while a track born there lives (for re-alignment).
         alive = [int(b) for b in np.unique(self._birth)]
         self._birth_images = {b: self._birth_images[b] for b in alive}
@@ -199,6 +166,46 @@ class FeatureTracker:
         self._image, self._t = gray, float(t)
         self._index += 1
         return obs
+
+    def _remember(self, keep: np.ndarray) -> None:
+        """Keep the tracks this frame lost, when it lost most of them at once."""
+        lost, frames = ~keep, self.config.reidentify_frames
+        n = np.count_nonzero(lost)  # a loss: more than half the tracks, at least 8, at once
+        if not frames or n < MIN_MATCHES or n <= (1.0 - WIDE_BASELINE_FRACTION) * len(keep):
+            return
+        old = self._lost  # a larger loss still looked for is not replaced by a smaller one
+        if old is not None and self._index - old.index <= frames and len(old.ids) > n:
+            return
+        births = [int(b) for b in np.unique(self._birth[lost])]
+        assert self._pinhole is not None  # set by the previous frame
+        self._lost = LostTracks(
+            self._index - 1, self._pinhole, self._found, self._ids[lost],
+            pinhole_pixels(self.camera, self._points[lost]), self._birth[lost],
+            self._birth_uv[lost], {b: self._birth_images[b] for b in births},
+            {b: self._warps[b] for b in births},
+        )  # fmt: skip
+
+    def _reidentify(self, pinhole: np.ndarray, found: tuple[np.ndarray, np.ndarray] | None):
+        """Resume the lost tracks found in this image under their old ids."""
+        lost = self._lost
+        assert lost is not None  # the caller checks
+        if self._index - lost.index > self.config.reidentify_frames:
+            self._lost = None
+            return
+        if lost.index == self._index - 1 and self.config.wide_baseline:
+            return  # the wide-baseline step has just tried this very pair
+        result = find_again(lost, pinhole, found, self.camera, self.config)
+        if result is None:
+            return
+        ok, uv, H0 = result
+        self._lost = None
+        self._points = np.vstack((self._points, uv[ok].astype(np.float32)))
+        self._ids = np.concatenate((self._ids, lost.ids[ok]))
+        self._birth = np.concatenate((self._birth, lost.birth[ok]))
+        self._birth_uv = np.vstack((self._birth_uv, lost.birth_uv[ok]))
+        for b in np.unique(lost.birth[ok]).tolist():
+            self._birth_images.setdefault(b, lost.birth_images[b])
+            self._warps.setdefault(b, H0 @ lost.warps[b])
 
     def _select(self, keep: np.ndarray) -> None:
         self._ids, self._birth, self._birth_uv = (
@@ -230,6 +237,40 @@ class FeatureTracker:
         moved = moved.reshape(-1, 2)
         return moved, (status.ravel() == 1) & np.all(np.isfinite(moved), axis=1)
 
+    def _follow(
+        self,
+        current: np.ndarray,
+        pinhole: np.ndarray,
+        p0: np.ndarray,
+        found: tuple[np.ndarray, np.ndarray] | None,
+    ) -> tuple[np.ndarray, np.ndarray]:
+        """The tracks p0 of the last image in ``current`` (``pinhole``: undistorted):
+        guided by the target's homography when the target is seen in both images, else
+        frame-to-frame KLT, and a SIFT homography (``wide_baseline``) when KLT loses
+        most of them.
+
+        Returns:
+            (N,) keep mask and (N, 2) raw pixel positions in ``current``.
+        """
+        assert self._image is not None and self._pinhole is not None
+        if found is not None and self._found is not None:
+            H0 = target_homography(self._found, found, self.camera)
+            if H0 is not None:
+                return self._track_guided(self._pinhole, pinhole, p0, H0)
+        keep, p1 = self._track(self._image, current, p0)
+        if not self.config.wide_baseline:
+            return keep, p1
+        if np.count_nonzero(keep) >= WIDE_BASELINE_FRACTION * len(p0):
+            return keep, p1
+        try:
+            H0, _ = feature_homography(self._pinhole, pinhole)
+        except InputError:  # too little texture or agreement: keep what KLT kept
+            return keep, p1
+        keep_g, p1_g = self._track_guided(self._pinhole, pinhole, p0, H0)
+        if np.count_nonzero(keep_g) > np.count_nonzero(keep):
+            return keep_g, p1_g
+        return keep, p1
+
     def _track(
         self, previous: np.ndarray, current: np.ndarray, p0: np.ndarray
     ) -> tuple[np.ndarray, np.ndarray]:
@@ -244,50 +285,76 @@ class FeatureTracker:
         fb_error = np.linalg.norm(back - p0, axis=1)
         keep = ok & ok_back & (fb_error < c.fb_threshold_px)
         keep &= self.camera.in_view(np.where(ok[:, None], p1, -1e9), margin=c.border_margin_px)
+        return self._plane_check(p0, p1, keep), p1.astype(np.float32)
+
+    def _track_guided(
+        self, previous: np.ndarray, current: np.ndarray, p0: np.ndarray, H0: np.ndarray
+    ) -> tuple[np.ndarray, np.ndarray]:
+        """The tracks aligned from ``previous`` warped by the coarse homography H0
+        (undistorted images and pinhole pixels, previous -> current), with the border and
+        RANSAC checks."""
+        c = self.config
+        q1, ok = guided_alignment(
+            previous,
+            current,
+            pinhole_pixels(self.camera, p0),
+            H0,
+            window=c.lk_window,
+            levels=min(c.lk_levels, 2),
+            iterations=c.lk_iterations,
+            epsilon=c.lk_epsilon,
+            fb_threshold_px=c.fb_threshold_px,
+        )
+        p1 = np.full_like(q1, -1e9)
+        p1[ok] = raw_pixels(self.camera, q1[ok])
+        keep = ok & self.camera.in_view(p1, margin=c.border_margin_px)
+        return self._plane_check(p0, p1, keep), p1.astype(np.float32)
+
+    def _plane_check(self, p0: np.ndarray, p1: np.ndarray, keep: np.ndarray) -> np.ndarray:
+        """Drop the kept tracks that do not move with the dominant plane (RANSAC homography
+        in pinhole pixels, where plane points map by one)."""
+        c = self.config
         if c.ransac_threshold_px is not None and np.count_nonzero(keep) >= 4:
             idx = np.flatnonzero(keep)
-            src = _undistorted_pixels(self.camera, p0[idx])
-            dst = _undistorted_pixels(self.camera, p1[idx])
+            src = pinhole_pixels(self.camera, p0[idx])
+            dst = pinhole_pixels(self.camera, p1[idx])
             H, inliers = cv2.findHomography(
                 src, dst, cv2.RANSAC, c.ransac_threshold_px, maxIters=2000, confidence=0.999
             )
             if H is not None:  # None: degenerate configuration, nothing to judge against
                 keep[idx[inliers.ravel() == 0]] = False
-        return keep, p1.astype(np.float32)
+        return keep
 
     def _realign(
         self, current: np.ndarray, keep: np.ndarray, p0: np.ndarray, p1: np.ndarray
     ) -> tuple[np.ndarray, np.ndarray]:
-        """Re-align each track against the image where it was first seen.
+        """Re-align each track against the image where it was first seen (frame-to-frame
+        KLT's window is biased by the patch's perspective deformation, and the bias adds up).
 
-        Frame-to-frame KLT drifts: its translation-only window is biased by the
-        patch's perspective deformation, and the bias adds up frame after
-        frame. For the tracks first seen in frame b, the plane homography G
-        from image b to the current image warps image b into the current view,
-        where the first patches look as they should now; LK from the warped
-        image b at G(p_b) to the current image, started at the frame-to-frame
-        result, then finds the points p_b themselves, without accumulated
-        drift. G is the least-squares fit to the group's first and current
-        positions when the group has enough points to pin it down, else the
-        previous G chained with the frame-to-frame homography of all tracks.
-        Only G's local shape matters (the warp makes the patches look right);
-        its errors do not move the points. Tracks moved by more than
-        ``refine_max_px`` are dropped (frame-to-frame and direct tracking
-        disagree).
-        """
+        For the tracks first seen in frame b, the plane homography G from image b
+        to the current one (undistorted) warps image b into the current view; LK from
+        it at G(p_b), started at the frame-to-frame result, finds the points p_b
+        themselves. G is the fit to the group's first and current positions (enough
+        points), else the previous G chained with all tracks' frame-to-frame
+        homography; only its local shape matters. Tracks moved by more than
+        ``refine_max_px`` are dropped."""
         c = self.config
         assert c.refine_max_px is not None
         size = (self.camera.width, self.camera.height)
         p1 = p1.copy()
+        # In pinhole pixels (the undistorted images), where the plane maps by a homography.
+        q0 = np.zeros((len(p0), 2))
+        q1 = np.zeros((len(p1), 2))
+        q0[keep], q1[keep] = (pinhole_pixels(self.camera, p[keep]) for p in (p0, p1))
         step = None
         if np.count_nonzero(keep) >= 4:
-            step, _ = cv2.findHomography(p0[keep], p1[keep], 0)
+            step, _ = cv2.findHomography(q0[keep], q1[keep], 0)
         for b in np.unique(self._birth[keep]).tolist():
             idx = np.flatnonzero(keep & (self._birth == b))
-            first = self._birth_uv[idx]
+            first = self._birth_uv[idx].astype(np.float64)
             G = None
             if len(idx) >= _MIN_GROUP_FIT:
-                G, _ = cv2.findHomography(first, p1[idx], 0)
+                G, _ = cv2.findHomography(first, q1[idx], 0)
             if G is None and step is not None:
                 G = step @ self._warps[b]
             if G is None:
@@ -303,17 +370,18 @@ class FeatureTracker:
             )
             predicted = cv2.perspectiveTransform(first.reshape(-1, 1, 2), G).reshape(-1, 2)
             # No pyramid: the frame-to-frame result is within a fraction of a pixel.
-            aligned, ok = self._lk(warped, current, predicted, guess=p1[idx], levels=0)
-            shift = np.linalg.norm(aligned - p1[idx], axis=1)
-            ok &= shift < c.refine_max_px
-            ok &= self.camera.in_view(
-                np.where(ok[:, None], aligned, -1e9), margin=c.border_margin_px
-            )
-            p1[idx[ok]] = aligned[ok]
+            aligned, ok = self._lk(warped, current, predicted, guess=q1[idx], levels=0)
+            ok &= np.linalg.norm(aligned - q1[idx], axis=1) < c.refine_max_px
+            moved = np.full_like(aligned, -1e9)
+            moved[ok] = raw_pixels(self.camera, aligned[ok])
+            ok &= self.camera.in_view(moved, margin=c.border_margin_px)
+            p1[idx[ok]] = moved[ok]
             keep[idx[~ok]] = False
         return keep, p1
 
-    def _replenish(self, gray: np.ndarray) -> None:
+    def _replenish(
+        self, gray: np.ndarray, pinhole: np.ndarray, found: tuple[np.ndarray, np.ndarray] | None
+    ) -> None:
         c = self.config
         wanted = c.max_features - len(self._points)
         if wanted <= 0:
@@ -321,6 +389,18 @@ class FeatureTracker:
         mask = np.zeros(gray.shape, dtype=np.uint8)
         m = int(np.ceil(c.border_margin_px))
         mask[m : gray.shape[0] - m, m : gray.shape[1] - m] = 255
+        if self.target is not None:
+            # Only the board is the plane: no corners where it is not seen.
+            outline = (
+                None
+                if found is None
+                else target_outline(found, board_margin(self.target), self.camera)
+            )
+            if outline is None:
+                return
+            board = np.zeros_like(mask)
+            cv2.fillPoly(board, [np.rint(outline).astype(np.int32)], 255)
+            mask &= board
         radius = round(c.min_distance)
         for u, v in np.rint(self._points).astype(int):
             cv2.circle(mask, (int(u), int(v)), radius, 0, thickness=-1)
@@ -340,18 +420,9 @@ class FeatureTracker:
         self._points = np.vstack((self._points, corners))
         self._ids = np.concatenate((self._ids, new_ids))
         self._birth = np.concatenate((self._birth, np.full(len(corners), self._index)))
-        self._birth_uv = np.vstack((self._birth_uv, corners))
-        self._birth_images[self._index] = gray
+        self._birth_uv = np.vstack((self._birth_uv, pinhole_pixels(self.camera, corners)))
+        self._birth_images[self._index] = pinhole
         self._warps[self._index] = np.eye(3)
-
-
-def _undistorted_pixels(camera: CameraModel, uv: np.ndarray) -> np.ndarray:
-    """(N, 2) pixels of an ideal pinhole camera with the same K, where plane points map by a
-    homography (they do not in distorted pixels)."""
-    if not camera.has_distortion:
-        return np.asarray(uv, dtype=np.float64).reshape(-1, 2)
-    m = camera.pixel_to_normalized(np.asarray(uv, dtype=float))
-    return (m @ camera.K.T)[:, :2]
 
 
 def track_images(
@@ -359,6 +430,7 @@ def track_images(
     times: Sequence[float],
     camera: CameraModel,
     config: TrackerConfig | None = None,
+    target: TargetSpec | None = None,
 ) -> list[FrameObservations]:
     """Track features through an image sequence.
 
@@ -369,6 +441,7 @@ def track_images(
         times: (K,) timestamps, seconds, strictly increasing.
         camera: the calibrated camera.
         config: tracker settings.
+        target: the board that defines the plane (:class:`FeatureTracker`), or None.
     Returns:
         K :class:`FrameObservations` (index k, t = times[k], ids, raw pixel uv),
         ready for :func:`hvo_graph.frontend.measure_sequence` or a tracks CSV.
@@ -383,7 +456,7 @@ def track_images(
         if k and not t[k] > t[k - 1]:
             raise InputError(f"times[{k}]: {t[k]} does not increase (previous {t[k - 1]})")
     names = getattr(images, "names", None)
-    tracker = FeatureTracker(camera, config)
+    tracker = FeatureTracker(camera, config, target)
     out = []
     for k, image in enumerate(images):
         if k >= len(t):
@@ -402,6 +475,7 @@ def tracks_from_images(
     fps: float | None = None,
     config: TrackerConfig | None = None,
     topic: str | None = None,
+    target: TargetSpec | None = None,
 ) -> list[FrameObservations]:
     """Feature tracks of a recorded sequence: :func:`~hvo_graph.io.sequences.open_recording`
     (image folder, video, TUM RGB-D, EuRoC, ROS bag) then :func:`track_images`.
@@ -414,6 +488,7 @@ def tracks_from_images(
             or replacing a video's container timestamps.
         config: tracker settings.
         topic: the image topic of a bag with several.
+        target: the board that defines the plane (:class:`FeatureTracker`), or None.
     Returns:
         One :class:`FrameObservations` per image, raw pixels.
     """
@@ -421,4 +496,4 @@ def tracks_from_images(
     camera = camera if camera is not None else recording.camera
     if camera is None:
         raise InputError(f"camera: {path} carries no calibration; pass the camera")
-    return track_images(recording.frames, recording.times, camera, config)
+    return track_images(recording.frames, recording.times, camera, config, target)
