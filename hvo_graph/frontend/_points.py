@@ -26,17 +26,44 @@ class TrackedFrame:
 
 def normalized_by_id(camera: CameraModel, obs: FrameObservations) -> tuple[np.ndarray, np.ndarray]:
     """Sorted ids and their normalized coordinates."""
-    order = np.argsort(obs.ids, kind="stable")
-    ids = np.asarray(obs.ids)[order]
-    if len(ids) > 1 and np.any(ids[1:] == ids[:-1]):
-        raise InputError(f"frame {obs.index}: a point id appears twice")
-    m = camera.pixel_to_normalized(np.asarray(obs.uv, dtype=float)[order]) if len(ids) else None
+    ids = np.asarray(obs.ids)
+    uv = np.asarray(obs.uv, dtype=float)
+    if len(ids) > 1 and not np.all(ids[1:] > ids[:-1]):  # not already sorted and unique
+        order = np.argsort(ids, kind="stable")
+        ids, uv = ids[order], uv[order]
+        if np.any(ids[1:] == ids[:-1]):
+            raise InputError(f"frame {obs.index}: a point id appears twice")
+    m = camera.pixel_to_normalized(uv) if len(ids) else None
     return ids, (m if m is not None else np.empty((0, 3)))
+
+
+def _same_ids(a: np.ndarray, b: np.ndarray) -> bool:
+    """Whether two sorted id arrays are equal (the usual case: the same tracks)."""
+    return a is b or (len(a) == len(b) and bool(np.all(a == b)))
+
+
+def shared_count(a: np.ndarray, b: np.ndarray) -> int:
+    """How many ids two sorted, unique id arrays share."""
+    if _same_ids(a, b):
+        return len(a)
+    return len(np.intersect1d(a, b, assume_unique=True))
 
 
 def common_points(
     a: TrackedFrame, ids: np.ndarray, m: np.ndarray, *, with_ids: bool = False
 ) -> tuple[np.ndarray, ...]:
     """The rows of ``a.m`` and ``m`` of the ids both have (and those ids, if asked)."""
+    if _same_ids(a.ids, ids):
+        return (a.m, m, ids) if with_ids else (a.m, m)
     shared, ia, ib = np.intersect1d(a.ids, ids, assume_unique=True, return_indices=True)
     return (a.m[ia], m[ib], shared) if with_ids else (a.m[ia], m[ib])
+
+
+def any_collinear(tolerance: float, *point_sets: np.ndarray) -> bool:
+    """Whether any of the point sets (each (N, 3), the same N >= 3) lies on one line within
+    ``tolerance`` (RMS distance): :func:`~hvo_graph.geometry.discrete.collinear`, with one
+    batched SVD."""
+    xy = np.stack([m[:, :2] for m in point_sets])
+    xy = xy - xy.mean(axis=1, keepdims=True)
+    smallest = np.linalg.svd(xy, compute_uv=False)[:, -1]
+    return bool(np.any(smallest / np.sqrt(xy.shape[1]) < tolerance))

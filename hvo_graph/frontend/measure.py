@@ -32,29 +32,27 @@ from dataclasses import dataclass
 import numpy as np
 
 from hvo_graph.errors import InputError, as_integer, as_number
-from hvo_graph.frontend._points import TrackedFrame, common_points, normalized_by_id
+from hvo_graph.frontend._points import (
+    TrackedFrame,
+    any_collinear,
+    common_points,
+    normalized_by_id,
+    shared_count,
+)
 from hvo_graph.frontend.velocity import flow_twist, mid_interval_plane
+from hvo_graph.geometry._fit import (
+    PlaneTransfer,
+    dlt,
+    euclidean,
+    known_normal_motion,
+    plane_basis,
+    retract,
+)
 from hvo_graph.geometry.camera import CameraModel
 from hvo_graph.geometry.continuous import motion_after_twist
-from hvo_graph.geometry.decomposition import (
-    decompose_homography,
-    motion_from_homography_known_normal,
-    physically_valid_solutions,
-)
-from hvo_graph.geometry.discrete import (
-    camera_pose_from_motion,
-    collinear,
-    estimate_homography,
-    euclidean_homography,
-    ippe_motion,
-)
-from hvo_graph.geometry.transfer import (
-    keyframe_plane_jacobian,
-    pose_noise,
-    pose_normal_equations,
-    retract_motion,
-    transfer_chi2,
-)
+from hvo_graph.geometry.decomposition import decompose_homography, physically_valid_solutions
+from hvo_graph.geometry.discrete import estimate_homography, ippe_motion
+from hvo_graph.geometry.transfer import keyframe_plane_jacobian
 from hvo_graph.types import (
     FrameMeasurement,
     FrameObservations,
@@ -202,6 +200,9 @@ class MeasurementFrontEnd:
         self._excluded: set[int] = set()
         self._rejected_now = 0
         self._last_twist = np.zeros(6)  # the latest measured [w; v] (predicts lost frames)
+        # (reference frame, n*, its plane) of the reference in use, and that plane's basis.
+        self._reference_plane: tuple | None = None
+        self._plane_basis: tuple[Plane, np.ndarray] | None = None
 
     @property
     def normal(self) -> np.ndarray | None:
@@ -233,8 +234,13 @@ class MeasurementFrontEnd:
         velocity = self._measure_velocity(frame) if prev is not None else None
         self._last_twist = self._last_twist if velocity is None else np.asarray(velocity.twist)
         limit = self.config.keyframe_min_points  # a new reference must see this many points
-        lost = len(np.intersect1d(self._reference.ids, ids)) < self.config.min_points
-        if pose is None and R is not None and lost and limit and len(ids) >= limit:
+        if (
+            pose is None
+            and R is not None
+            and limit
+            and len(ids) >= limit
+            and shared_count(self._reference.ids, ids) < self.config.min_points
+        ):
             # Re-acquisition: a new reference at its predicted pose; the estimators re-place
             # the plane at their own estimate of it (keyframe plane Jacobian).
             self._move_reference(frame)
@@ -273,8 +279,8 @@ class MeasurementFrontEnd:
             self._move_reference(earlier or self._previous)
             m_ref, m_cur, shared = common_points(self._reference, ids, m, with_ids=True)
         ref = self._reference
-        if len(m_ref) < self.config.min_points or any(
-            collinear(m_, COLLINEAR_SIGMAS * self._sigma) for m_ in (m_ref, m_cur)
+        if len(m_ref) < self.config.min_points or any_collinear(
+            COLLINEAR_SIGMAS * self._sigma, m_ref, m_cur
         ):
             return None, None, None
         if self._normal is None:  # only while still on frame 0: estimate n* from parallax
@@ -282,37 +288,47 @@ class MeasurementFrontEnd:
             if motion is None:
                 return None, None, None
         plane = self._plane_in(ref)
+        fit = PlaneTransfer(m_ref, m_cur, plane, self._sigma)
         if self.config.pose_solver == "ippe":
             R, T = ippe_motion(m_ref, m_cur, plane)
             start = np.ones(len(m_ref), dtype=bool)
         else:
-            motion = self._homography_motion(m_ref, m_cur, plane)
+            motion = self._homography_motion(m_ref, m_cur, plane, self._basis(plane))
             if motion is None:
                 return None, None, None
             R, T, start = motion
         # RANSAC's inliers start the refinement; the gate at the refined pose, on every
         # shared point, decides (RANSAC's mask comes from a noisy minimal sample).
         robust = self.config.outlier_chi2 is not None and len(m_ref) >= ROBUST_MIN_POINTS
+        everything = bool(start.all())
         R, T, info = self._refine(
-            R, T, m_ref[start], m_cur[start], plane, HUBER if robust else None
+            R, T, fit if everything else fit.subset(start), HUBER if robust else None
         )
-        keep = self._gate(R, T, m_ref, m_cur, plane, info)
+        lin = None  # the linearization at the final (R, T) on the points kept
+        keep = np.ones(len(m_ref), dtype=bool)
+        if self.config.outlier_chi2 is not None and len(m_ref) >= ROBUST_MIN_POINTS:
+            lin = fit.linearize(R, T)
+            keep = fit.chi2(lin, info) <= self.config.outlier_chi2
         if np.count_nonzero(keep) < self.config.min_points:
             return None, None, None
         self._reject(shared[~keep])
         refit = not np.array_equal(keep, start)
-        m_ref, m_cur = m_ref[keep], m_cur[keep]
+        if not keep.all():
+            fit, lin = fit.subset(keep), None
+            m_ref, m_cur = m_ref[keep], m_cur[keep]
         if refit:
-            R, T, info = self._refine(R, T, m_ref, m_cur, plane)
-        R_rc, p_rc = camera_pose_from_motion(R, T)
-        covariance, shared_covariance, shared_jacobian = pose_noise(
-            R, T, m_ref, m_cur, plane, self._sigma
+            R, T, info = self._refine(R, T, fit)
+            lin = None
+        R_rc = R.T.copy()  # the camera pose T_rc (camera_pose_from_motion)
+        p_rc = -R.T @ T
+        covariance, shared_covariance, shared_jacobian = fit.noise(
+            fit.linearize(R, T) if lin is None else lin
         )
         keyframe: dict[str, np.ndarray] = {}
         if ref.index != self._world_index:
             # The keyframe's plane comes from its *measured* pose: say which, and how T_rc
             # moves with it, so an estimator can re-place the plane at its own estimate.
-            R_wr, p_wr = camera_pose_from_motion(ref.R, ref.T)
+            R_wr, p_wr = ref.R.T.copy(), -ref.R.T @ ref.T
             keyframe = {
                 "reference_rotation": R_wr,
                 "reference_position": p_wr,
@@ -332,37 +348,17 @@ class MeasurementFrontEnd:
         return R @ ref.R, R @ ref.T + T, pose
 
     def _refine(
-        self,
-        R: np.ndarray,
-        T: np.ndarray,
-        m_ref: np.ndarray,
-        m_cur: np.ndarray,
-        plane: Plane,
-        huber: float | None = None,
+        self, R: np.ndarray, T: np.ndarray, fit: PlaneTransfer, huber: float | None = None
     ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        """Gauss-Newton steps on the weighted transfer error: (R, T, information)."""
+        """Gauss-Newton steps on the weighted transfer error (:func:`~hvo_graph.geometry.
+        transfer.pose_normal_equations`): (R, T, information before the last step)."""
         info = np.eye(6)
         for _ in range(self.config.refine_iterations + 1 + (3 if huber else 0)):
-            info, grad = pose_normal_equations(R, T, m_ref, m_cur, plane, self._sigma, huber)
+            info, grad = fit.normal_equations(R, T, huber)
             if self.config.pose_solver == "ippe":
                 break  # IPPE is reported as OpenCV gives it, without our refinement
-            R, T = retract_motion(R, T, np.linalg.solve(info, grad))
+            R, T = retract(R, T, np.linalg.solve(info, grad))
         return R, T, info
-
-    def _gate(
-        self,
-        R: np.ndarray,
-        T: np.ndarray,
-        m_ref: np.ndarray,
-        m_cur: np.ndarray,
-        plane: Plane,
-        info: np.ndarray,
-    ) -> np.ndarray:
-        """Inlier mask of the chi^2 gate on the transfer residuals (all True without gate)."""
-        limit = self.config.outlier_chi2
-        if limit is None or len(m_ref) < ROBUST_MIN_POINTS:
-            return np.ones(len(m_ref), dtype=bool)
-        return transfer_chi2(R, T, m_ref, m_cur, plane, self._sigma, info) <= limit
 
     def _move_reference(self, frame: TrackedFrame | None) -> None:
         assert frame is not None and self._reference is not None
@@ -379,7 +375,7 @@ class MeasurementFrontEnd:
         need = max(self.config.min_points, self.config.keyframe_min_points or 0)
         if shared_with_reference >= need or not self._earlier:
             return None
-        counts = [len(np.intersect1d(f.ids, ids, assume_unique=True)) for f in self._earlier]
+        counts = [shared_count(f.ids, ids) for f in self._earlier]
         best = int(np.argmax(counts))
         return self._earlier[best] if counts[best] >= need else None
 
@@ -396,41 +392,60 @@ class MeasurementFrontEnd:
             return False
         if shared_with_reference >= limit:
             return False
-        shared_with_previous = len(np.intersect1d(prev.ids, ids, assume_unique=True))
+        shared_with_previous = shared_count(prev.ids, ids)
         if shared_with_reference < self.config.min_points:
             return shared_with_previous >= self.config.min_points
         return shared_with_previous >= 2 * shared_with_reference
 
     def _plane_in(self, frame: TrackedFrame) -> Plane:
-        """The plane in ``frame``'s camera frame: n = R n*, d = d* + n^T T."""
+        """The plane in ``frame``'s camera frame: n = R n*, d = d* + n^T T (kept while
+        ``frame`` stays the reference)."""
+        cached = self._reference_plane
+        if cached is not None and cached[0] is frame and cached[1] is self._normal:
+            return cached[2]
         n = frame.R @ self._normal
-        return Plane(self.plane.distance + float(n @ frame.T), n)
+        plane = Plane(self.plane.distance + float(n @ frame.T), n)
+        self._reference_plane = (frame, self._normal, plane)
+        return plane
+
+    def _basis(self, plane: Plane) -> np.ndarray:
+        """:func:`~hvo_graph.geometry._fit.plane_basis` of the plane's normal (kept)."""
+        if self._plane_basis is None or self._plane_basis[0] is not plane:
+            self._plane_basis = (plane, plane_basis(plane.normal))
+        return self._plane_basis[1]
 
     def _homography_motion(
-        self, m_ref: np.ndarray, m_cur: np.ndarray, plane: Plane | None
+        self,
+        m_ref: np.ndarray,
+        m_cur: np.ndarray,
+        plane: Plane | None,
+        basis: np.ndarray | None = None,
     ) -> tuple[np.ndarray, np.ndarray, np.ndarray] | None:
-        """(R, T, inlier mask) from H_d with the plane in the reference frame.
+        """(R, T, inlier mask) from H_d with the plane in the reference frame
+        (``basis``: :func:`~hvo_graph.geometry._fit.plane_basis` of its normal).
 
         With ``plane`` None (n* unknown), feeds the normal estimation and
         returns None until n* is known.
         """
         threshold = self.config.ransac_px if len(m_ref) >= ROBUST_MIN_POINTS else None
-        H, inliers = estimate_homography(
-            m_ref,
-            m_cur,
-            ransac_threshold=None if threshold is None else threshold / self.camera.mean_focal,
-        )
+        if threshold is None:  # the DLT of estimate_homography, on the checked points
+            H, inliers = dlt(m_ref, m_cur), np.ones(len(m_ref), dtype=bool)
+        else:
+            H, inliers = estimate_homography(
+                m_ref, m_cur, ransac_threshold=threshold / self.camera.mean_focal
+            )
         if np.count_nonzero(inliers) < self.config.min_points:
             return None
-        m_ref, m_cur = m_ref[inliers], m_cur[inliers]
-        H = euclidean_homography(H, m_ref, m_cur)
-        if plane is None:
+        if not inliers.all():
+            m_ref, m_cur = m_ref[inliers], m_cur[inliers]
+        H = euclidean(H, m_ref, m_cur)
+        if plane is None or basis is None:
             return (
                 (np.eye(3), np.zeros(3), inliers)
                 if self._estimate_normal(H, m_ref, m_cur)
                 else None
             )
-        R, t = motion_from_homography_known_normal(H, plane.normal)
+        R, t = known_normal_motion(H, plane.normal, basis)
         return R, plane.distance * t, inliers
 
     def _estimate_normal(self, H: np.ndarray, m_ref: np.ndarray, m_cur: np.ndarray) -> bool:
@@ -462,7 +477,7 @@ class MeasurementFrontEnd:
         if self._normal is None:
             return None
         m0, m1 = common_points(prev, frame.ids, frame.m)
-        if len(m0) < self.config.min_points or collinear(m0, COLLINEAR_SIGMAS * self._sigma):
+        if len(m0) < self.config.min_points or any_collinear(COLLINEAR_SIGMAS * self._sigma, m0):
             return None
         motions = [(f.R, f.T) for f in (prev, frame) if f.R is not None]
         plane = mid_interval_plane(motions, self._normal, self.plane.distance)

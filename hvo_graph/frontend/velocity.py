@@ -4,17 +4,18 @@ Optical flow by finite difference, mdot = (m1 - m0) / dt at the midpoint
 m = (m0 + m1) / 2, and the linear least-squares solve for (w, v/d) with the
 plane (n, d) of mid-interval known (:func:`~hvo_graph.geometry.continuous.velocity_known_normal`).
 The result is the body twist at the middle of the interval.
+
+Per frame pair this builds the design matrix once and solves it with one SVD
+(again only when the residual gate drops points); the points are the front
+end's own checked arrays.
 """
 
 from __future__ import annotations
 
 import numpy as np
 
-from hvo_graph.geometry.continuous import (
-    body_twist_from_scene_motion,
-    velocity_design_matrix,
-    velocity_known_normal,
-)
+from hvo_graph.errors import InputError
+from hvo_graph.geometry.continuous import _known_normal_solve
 from hvo_graph.types import Plane, VelocityMeasurement
 
 
@@ -43,25 +44,25 @@ def flow_twist(
         The body twist [w; v] at (t0 + t1) / 2 with covariance
         s_f^2 J (A^T A)^-1 J^T, s_f^2 = 2 sigma^2 / dt^2, J = -diag(1, 1, 1, d, d, d).
     """
+    if len(m0) < 3:
+        raise InputError(f"m0: need at least 3 points, got {len(m0)}")
     dt = t1 - t0
     n, d = plane.normal, plane.distance
+    n = n / np.linalg.norm(n)  # as velocity_known_normal's check leaves it
     m_mid = 0.5 * (m0 + m1)
-    mdot = (m1 - m0) / dt
-    w, v = velocity_known_normal(m_mid, mdot, n, d)
-    A = velocity_design_matrix(m_mid, n)
+    flow = ((m1 - m0) / dt)[:, :2]
+    w, v, A = _known_normal_solve(m_mid, flow, n, d)
     if outlier_chi2 is not None:
-        residual = (mdot[:, :2].ravel() - A @ np.concatenate((w, v / d))).reshape(-1, 2)
+        residual = (flow.ravel() - A @ np.concatenate((w, v / d))).reshape(-1, 2)
         keep = np.sum(residual**2, axis=1) * dt**2 / (2.0 * sigma**2) <= outlier_chi2
         if np.count_nonzero(keep) < min_points:
             return None
         if not keep.all():
-            m_mid, mdot = m_mid[keep], mdot[keep]
-            w, v = velocity_known_normal(m_mid, mdot, n, d)
-            A = velocity_design_matrix(m_mid, n)
-    twist = body_twist_from_scene_motion(w, v)
+            w, v, A = _known_normal_solve(m_mid[keep], flow[keep], n, d)
+    twist = -np.concatenate((w, v))  # the body twist (body_twist_from_scene_motion)
     cov_wu = (2.0 * sigma**2 / dt**2) * np.linalg.inv(A.T @ A)
-    J = -np.diag([1.0, 1.0, 1.0, d, d, d])  # [w_b; v_b] = -[w; d u]
-    covariance = J @ cov_wu @ J.T
+    j = np.array([-1.0, -1.0, -1.0, -d, -d, -d])  # J = diag(j): [w_b; v_b] = -[w; d u]
+    covariance = j[:, None] * cov_wu * j[None, :]  # J cov_wu J^T
     return VelocityMeasurement(twist, 0.5 * (covariance + covariance.T), 0.5 * (t0 + t1), dt)
 
 

@@ -299,8 +299,11 @@ def velocity_design_matrix(m: np.ndarray, normal: np.ndarray) -> np.ndarray:
         (2N, 6) A with A [w; u] = [xdot_1, ydot_1, xdot_2, ...], columns [w; u],
         u = v / d, Ma's scene-motion convention.
     """
-    m = normalized_points(m, "m")
-    n = unit_normal(normal)
+    return _design_matrix(normalized_points(m, "m"), unit_normal(normal))
+
+
+def _design_matrix(m: np.ndarray, n: np.ndarray) -> np.ndarray:
+    """:func:`velocity_design_matrix` of checked (N, 3) points and a unit normal."""
     N = len(m)
     P = np.zeros((N, 2, 3))
     P[:, 0, 0] = P[:, 1, 1] = 1.0
@@ -340,11 +343,18 @@ def velocity_known_normal(
     """
     m = normalized_points(m, "m", min_points=3)
     f = _flow(mdot, len(m))
-    n = unit_normal(normal)
-    d = positive_distance(distance)
+    w, v, _ = _known_normal_solve(m, f, unit_normal(normal), positive_distance(distance))
+    return w, v
+
+
+def _known_normal_solve(
+    m: np.ndarray, f: np.ndarray, n: np.ndarray, d: float
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """:func:`velocity_known_normal` of checked arrays: m (N, 3), flow f (N, 2), unit n,
+    d > 0; also returns the design matrix A (2N, 6)."""
     if not float(np.min(m @ n)) > 0:
         raise InputError("m: points behind the camera (n^T m <= 0 for the given normal)")
-    A = velocity_design_matrix(m, n)
+    A = _design_matrix(m, n)
     U, sv, Vt = np.linalg.svd(A, full_matrices=False)
     if not sv[5] > DEGENERACY_TOL * sv[0]:
         raise InputError(
@@ -352,7 +362,7 @@ def velocity_known_normal(
             "velocity system is rank-deficient"
         )
     x = Vt.T @ ((U.T @ f.ravel()) / sv)
-    return x[:3], d * x[3:]
+    return x[:3], d * x[3:], A
 
 
 def body_twist_from_scene_motion(w: np.ndarray, v: np.ndarray) -> np.ndarray:

@@ -115,52 +115,33 @@ def _hartley(m: np.ndarray) -> np.ndarray:
     return np.array([[s, 0.0, -s * c[0]], [0.0, s, -s * c[1]], [0.0, 0.0, 1.0]])
 
 
-def _dlt_system(src: np.ndarray, dst: np.ndarray) -> np.ndarray:
-    """(2N, 9) rows of dst × (H src) = 0 for h = H.ravel() (rows x and y of the cross product)."""
-    n = len(src)
-    A = np.zeros((2 * n, 9))
-    x, y = dst[:, 0], dst[:, 1]
-    A[0::2, 3:6] = -src
-    A[0::2, 6:9] = y[:, None] * src
-    A[1::2, 0:3] = src
-    A[1::2, 6:9] = -x[:, None] * src
-    return A
-
-
-def _degeneracy_ratio(A: np.ndarray) -> tuple[float, np.ndarray]:
-    """sigma_8 / sigma_1 of a (2N, 9) system (0 when rank < 8) and its right singular vectors."""
-    # Full U is (2N, 2N): only ask for it when the system is short (N = 4), where
-    # Vt must still include the null vector.
-    _, s, Vt = np.linalg.svd(A, full_matrices=A.shape[0] < 9)
-    s9 = np.zeros(9)
-    s9[: len(s)] = s
-    ratio = s9[7] / s9[0] if s9[0] > 0 else 0.0
-    return float(ratio), Vt
-
-
-def _check_configuration(m: np.ndarray, name: str) -> None:
-    """Raise when the point set alone does not determine a homography (collinear points).
-
-    The set m is degenerate exactly when more than one homography maps it onto
-    itself, i.e. when the DLT system of the identity correspondence m -> m has rank < 8.
-    """
-    Tm = _hartley(m)
-    mn = m @ Tm.T
-    ratio, _ = _degeneracy_ratio(_dlt_system(mn, mn))
-    if ratio < DEGENERACY_TOL:
-        raise InputError(
-            f"{name}: degenerate point configuration (collinear points: all, or all but one, "
-            "on a line); the homography is not determined"
-        )
-
-
 def _dlt(m_ref: np.ndarray, m_cur: np.ndarray) -> np.ndarray:
-    """Normalized DLT (Hartley & Zisserman alg. 4.2); least squares for N > 4."""
-    _check_configuration(m_ref, "m_ref")
-    _check_configuration(m_cur, "m_cur")
+    """Normalized DLT (Hartley & Zisserman alg. 4.2); least squares for N > 4.
+
+    The point sets are checked first: either alone is degenerate exactly when more
+    than one homography maps it onto itself, i.e. when the DLT system of the
+    identity correspondence m -> m has rank < 8. Those two systems and the DLT's own
+    (rows x and y of dst × (H src) = 0 for h = H.ravel()) share one batched SVD.
+    """
     T_ref, T_cur = _hartley(m_ref), _hartley(m_cur)
-    ratio, Vt = _degeneracy_ratio(_dlt_system(m_ref @ T_ref.T, m_cur @ T_cur.T))
-    if ratio < DEGENERACY_TOL:
+    a, b = m_ref @ T_ref.T, m_cur @ T_cur.T
+    n = len(a)
+    systems = np.zeros((3, 2 * n, 9))  # the systems of (a, a), (b, b) and (a, b)
+    src, dst = np.stack((a, b, a)), np.stack((a, b, b))
+    systems[:, 0::2, 3:6] = -src
+    systems[:, 0::2, 6:9] = dst[:, :, 1:2] * src
+    systems[:, 1::2, 0:3] = src
+    systems[:, 1::2, 6:9] = -dst[:, :, 0:1] * src
+    _, s, Vt = np.linalg.svd(systems, full_matrices=2 * n < 9)
+    ratios = s[:, 7] / s[:, 0]  # sigma_8 / sigma_1 (sigma_1 > 0: the third column is 1)
+    for ratio, name in zip(ratios[:2], ("m_ref", "m_cur"), strict=True):
+        if ratio < DEGENERACY_TOL:
+            raise InputError(
+                f"{name}: degenerate point configuration (collinear points: all, or all but "
+                "one, on a line); the homography is not determined"
+            )
+    Vt = Vt[2]
+    if ratios[2] < DEGENERACY_TOL:
         raise InputError(
             "m_ref, m_cur: degenerate correspondences (the DLT system is rank-deficient, "
             "e.g. collinear points); the homography is not determined"
