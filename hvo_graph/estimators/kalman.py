@@ -27,6 +27,7 @@ that rotates the measured v into W first.
 from __future__ import annotations
 
 import dataclasses
+import math
 from collections.abc import Iterable, Sequence
 
 import numpy as np
@@ -34,7 +35,6 @@ import numpy as np
 from hvo_graph.errors import InputError, as_covariance, as_integer, as_vector
 from hvo_graph.estimators.base import Estimator
 from hvo_graph.estimators.kalman_model import (
-    _ANGLE_ROWS,
     ANGLES,
     ANGULAR_VELOCITY,
     DEFAULT_INITIAL_COVARIANCE,
@@ -47,7 +47,13 @@ from hvo_graph.estimators.kalman_model import (
     StateMeasurement,
     _check_pitch,
     _check_process_noise,
+    _euler_rates,
+    _rotation,
+    _selection,
+    _state_measurement,
     _wrap,
+    _wrap_angles,
+    _wrap_entries,
     process_covariance,
     state_measurement,
     state_to_tangent_jacobian,
@@ -62,6 +68,14 @@ from hvo_graph.estimators.process_noise import (
 )
 from hvo_graph.geometry.rotation import euler_to_rotation
 from hvo_graph.types import FrameMeasurement, StateEstimate, Trajectory
+
+_I12 = np.eye(12)
+_I12.setflags(write=False)
+#: state_to_tangent_jacobian's constant entries (body-frame velocity state).
+_J_TEMPLATE = np.zeros((12, 12))
+_J_TEMPLATE[6:9, ANGULAR_VELOCITY] = np.eye(3)
+_J_TEMPLATE[9:12, LINEAR_VELOCITY] = np.eye(3)
+_J_TEMPLATE.setflags(write=False)
 
 
 class KalmanBaseline(Estimator):
@@ -140,6 +154,7 @@ class KalmanBaseline(Estimator):
             else process_noise
         )
         self._shared = np.zeros((6, 6))  # reference noise of the latest pose ("measured")
+        self._shared_nonzero = False
         self._last_pose: tuple[int, int] | None = None  # (frame, reference) of the latest pose
         self.world_frame_velocity = bool(world_frame_velocity)
         P0 = as_covariance(
@@ -166,16 +181,16 @@ class KalmanBaseline(Estimator):
         self.S: np.ndarray | None = None
         self.K: np.ndarray | None = None
         self._t_prev: float | None = None
+        self._q_cache: dict[float, tuple[np.ndarray, np.ndarray]] = {}
 
     # -- the textbook steps ---------------------------------------------------------
 
     def predict(self, dt: float) -> None:
         """x = F x, P = F P F^T + Q, with F_k at the current estimate's (r, p)."""
-        p, r = self.x[3], self.x[5]
-        F = transition_matrix(r, p, dt)
-        Q = process_covariance(dt, self.process_noise)
+        F = self._transition(dt)
+        Q = self._process_covariance(dt)
         x = F @ self.x
-        x[ANGLES] = _wrap(x[ANGLES])
+        _wrap_angles(x)
         self.x, self.P, self.F, self.Q = x, F @ self.P @ F.T + Q, F, Q
 
     def correct(self, z: np.ndarray, rows: np.ndarray, R_diag: np.ndarray) -> None:
@@ -184,20 +199,40 @@ class KalmanBaseline(Estimator):
         y = z - H x (angle rows wrapped to (-pi, pi]), S = H P H^T + R,
         K = P H^T S^-1, x = x + K y, P = (I - K H) P (I - K H)^T + K R K^T (Joseph form).
         """
-        rows = np.asarray(rows, dtype=int)
-        H = np.eye(12)[rows]
+        H, angle = _selection(rows)
         R = np.diag(np.asarray(R_diag, dtype=float))
         y = np.asarray(z, dtype=float) - H @ self.x
-        angle = np.isin(rows, _ANGLE_ROWS)
-        y[angle] = _wrap(y[angle])
+        if angle is not None:
+            _wrap_entries(y, angle)
         S = H @ self.P @ H.T + R
         K = np.linalg.solve(S, H @ self.P).T  # = P H^T S^-1 (P, S symmetric)
         x = self.x + K @ y
-        x[ANGLES] = _wrap(x[ANGLES])
-        I_KH = np.eye(12) - K @ H
+        _wrap_angles(x)
+        I_KH = _I12 - K @ H
         P = I_KH @ self.P @ I_KH.T + K @ R @ K.T
         self.x, self.P = x, 0.5 * (P + P.T)
         self.H, self.R, self.y, self.S, self.K = H, R, y, S, K
+
+    def _transition(self, dt: float) -> np.ndarray:
+        """:func:`transition_matrix` at the current (r, p), with its checks: F_k."""
+        if not (isinstance(dt, float) and 0.0 < dt < math.inf):
+            return transition_matrix(self.x[5], self.x[3], dt)  # raises with its message
+        p, _, r = self.x[3:6].tolist()
+        E = _euler_rates(r, p, "euler_rate_matrix")
+        F = _I12.copy()
+        F[0, 6] = F[1, 7] = F[2, 8] = dt
+        F[3:6, 9:12] = dt * E
+        return F
+
+    def _process_covariance(self, dt: float) -> np.ndarray:
+        """:func:`process_covariance` (dt, process_noise), kept for the last few dt."""
+        cached = self._q_cache.get(dt)
+        if cached is None or cached[0] is not self.process_noise:
+            if len(self._q_cache) > 64:  # frame intervals take few distinct values
+                self._q_cache.clear()
+            cached = (self.process_noise, process_covariance(dt, self.process_noise))
+            self._q_cache[dt] = cached
+        return cached[1]
 
     # -- the estimator interface ----------------------------------------------------
 
@@ -215,7 +250,7 @@ class KalmanBaseline(Estimator):
 
     def _update(self, frame: FrameMeasurement) -> StateEstimate:
         t = float(frame.t)
-        if not np.isfinite(t):
+        if not math.isfinite(t):
             raise InputError(f"frame {frame.index}: t is not finite ({frame.t})")
         if self._t_prev is not None:
             self.predict(t - self._t_prev)
@@ -225,15 +260,16 @@ class KalmanBaseline(Estimator):
         frame = self._own_noise(frame)
         if frame.pose is not None and frame.pose.reference != 0:
             frame = dataclasses.replace(frame, pose=self.pose_in_world(frame.pose))
-        p, w, r = self.x[ANGLES]
-        meas = state_measurement(
-            frame,
-            world_frame_velocity=self.world_frame_velocity,
-            fallback_rotation=euler_to_rotation(r, p, w),
-        )
+        if self.world_frame_velocity:
+            p, w, r = self.x[ANGLES]
+            meas = state_measurement(
+                frame, world_frame_velocity=True, fallback_rotation=euler_to_rotation(r, p, w)
+            )
+        else:  # the paper's R_k presets read no measured variances
+            meas = _state_measurement(frame, False, None, variances=self.r_preset == "measured")
         if meas.rows.size:
             self.correct(meas.z, meas.rows, self._r_diagonal(meas, frame.index))
-        _check_pitch(self.x[3], f"frame {frame.index}: estimated state")
+        _check_pitch(float(self.x[3]), f"frame {frame.index}: estimated state")
         return self.state_estimate(frame.index, t)
 
     def run(self, frames: Iterable[FrameMeasurement]) -> Trajectory:
@@ -254,12 +290,15 @@ class KalmanBaseline(Estimator):
             self._last_pose = (frame.index, pose.reference)
             if self.r_preset == "measured" and pose.reference_covariance is not None:
                 self._shared = checked_reference_covariance(pose, frame.index)
+                self._shared_nonzero = True
                 pose = dataclasses.replace(pose, covariance=pose.covariance - self._shared)
             gaps = self.velocity_updates == "gaps"
             if gaps and velocity is not None and previous is not None and self._online:
                 last = self._online[-1].index
                 before = previous[1] if previous[0] == last else None
                 velocity = None if poses_span(last, before, pose.reference) else velocity
+        if pose is frame.pose and velocity is frame.velocity:
+            return frame
         return dataclasses.replace(frame, pose=pose, velocity=velocity)
 
     def state_estimate(self, index: int, t: float) -> StateEstimate:
@@ -270,19 +309,26 @@ class KalmanBaseline(Estimator):
         rotation tangent (and, with world_frame_velocity, of v to the body frame).
         """
         x = self.x
-        p, w, r = x[ANGLES]
-        R_wc = euler_to_rotation(r, p, w)
-        v = x[LINEAR_VELOCITY]
         if self.world_frame_velocity:
-            v = R_wc.T @ v
-        J = state_to_tangent_jacobian(x, world_frame_velocity=self.world_frame_velocity)
+            p, w, r = x[ANGLES]
+            R_wc = euler_to_rotation(r, p, w)
+            v = R_wc.T @ x[LINEAR_VELOCITY]
+            J = state_to_tangent_jacobian(x, world_frame_velocity=True)
+        else:  # the same arithmetic without the argument checks
+            p, w, r = x[3:6].tolist()
+            R_wc = _rotation(r, p, w)
+            v = x[LINEAR_VELOCITY]
+            J = _J_TEMPLATE.copy()
+            J[0:3, 3:6] = np.linalg.inv(_euler_rates(r, p, "euler_rate_matrix"))
+            J[3:6, 0:3] = R_wc.T
         cov = J @ self.P @ J.T
-        cov[:6, :6] += self._shared  # zero unless "measured" with reference covariances
+        if self._shared_nonzero:  # "measured" with reference covariances
+            cov[:6, :6] += self._shared
         return StateEstimate(
             index=index,
             t=t,
             rotation=R_wc,
             position=x[POSITION].copy(),
-            twist=np.concatenate([x[ANGULAR_VELOCITY], v]),
+            twist=np.concatenate((x[ANGULAR_VELOCITY], v)),
             covariance=0.5 * (cov + cov.T),
         )

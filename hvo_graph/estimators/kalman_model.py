@@ -9,6 +9,7 @@ the contract's [pose tangent; twist].
 
 from __future__ import annotations
 
+import math
 from collections.abc import Sequence
 from dataclasses import dataclass
 
@@ -17,7 +18,13 @@ import numpy as np
 from hvo_graph.errors import InputError, as_matrix, as_number, as_vector
 from hvo_graph.estimators.choices import KALMAN_R_PRESETS
 from hvo_graph.estimators.process_noise import white_noise_blocks
-from hvo_graph.geometry.rotation import euler_to_rotation, rotation_to_euler, skew, wrap_angle
+from hvo_graph.geometry.rotation import (
+    GIMBAL_LOCK_COS,
+    euler_to_rotation,
+    rotation_to_euler,
+    skew,
+    wrap_angle,
+)
 from hvo_graph.types import FrameMeasurement
 
 #: Names of the 12 state components, in state order.
@@ -64,6 +71,8 @@ def _wrap(a: np.ndarray) -> np.ndarray:
 
 
 def _check_pitch(p: float, what: str) -> None:
+    if -MAX_ABS_PITCH <= p <= MAX_ABS_PITCH:  # the usual case (False for NaN)
+        return
     if not np.isfinite(p):
         raise InputError(f"{what}: pitch is not finite ({p})")
     pw = float(_wrap(p))
@@ -86,8 +95,14 @@ def euler_rate_matrix(r: float, p: float) -> np.ndarray:
     Raises:
         InputError: when |p| > MAX_ABS_PITCH (near gimbal lock).
     """
-    _check_pitch(p, "euler_rate_matrix")
-    sr, cr, cp, tp = np.sin(r), np.cos(r), np.cos(p), np.tan(p)
+    return _euler_rates(float(r), float(p), "euler_rate_matrix")
+
+
+def _euler_rates(r: float, p: float, what: str) -> np.ndarray:
+    """:func:`euler_rate_matrix` of Python floats (the filter's per-frame path)."""
+    if not (math.isfinite(p) and -MAX_ABS_PITCH <= p <= MAX_ABS_PITCH):
+        _check_pitch(p, what)  # raises unless p is within the bound after wrapping
+    sr, cr, cp, tp = math.sin(r), math.cos(r), math.cos(p), float(np.tan(p))
     return np.array(
         [
             [cr, -sr, 0.0],  # pdot = wx cos r - wy sin r
@@ -95,6 +110,65 @@ def euler_rate_matrix(r: float, p: float) -> np.ndarray:
             [sr * tp, cr * tp, 1.0],  # rdot = (wx sin r + wy cos r) tan p + wz
         ]
     )
+
+
+def _rotation(r: float, p: float, w: float) -> np.ndarray:
+    """R_wc = R_y(w) R_x(p) R_z(r) of Python floats: the product of
+    :func:`~hvo_graph.geometry.rotation.euler_to_rotation`, written out."""
+    sr, cr = math.sin(r), math.cos(r)
+    sp, cp = math.sin(p), math.cos(p)
+    sw, cw = math.sin(w), math.cos(w)
+    return np.array(
+        [
+            [cw * cr + sw * sp * sr, -cw * sr + sw * sp * cr, sw * cp],
+            [cp * sr, cp * cr, -sp],
+            [-sw * cr + cw * sp * sr, sw * sr + cw * sp * cr, cw * cp],
+        ]
+    )
+
+
+#: (H, angle mask or None) of each measured row pattern (pose, velocity, both).
+_SELECTIONS: dict[bytes, tuple[np.ndarray, np.ndarray | None]] = {}
+
+
+def _selection(rows: np.ndarray) -> tuple[np.ndarray, np.ndarray | None]:
+    """H = the rows of I_12, and which of them are angles (None: none), kept per pattern."""
+    rows = np.asarray(rows, dtype=int)
+    key = rows.tobytes()
+    found = _SELECTIONS.get(key)
+    if found is None:
+        H = np.eye(12)[rows]
+        H.setflags(write=False)
+        angle = np.isin(rows, _ANGLE_ROWS)
+        found = (H, angle if angle.any() else None)
+        if len(_SELECTIONS) < 64:
+            _SELECTIONS[key] = found
+    return found
+
+
+def _euler_angles(R: np.ndarray) -> tuple[float, float, float]:
+    """:func:`~hvo_graph.geometry.rotation.rotation_to_euler` of a checked (3, 3) R."""
+    (_, _, r02), (r10, r11, r12), (_, _, r22) = R.tolist()
+    pitch = float(np.arcsin(min(max(-r12, -1.0), 1.0)))
+    if math.hypot(r10, r11) < GIMBAL_LOCK_COS:
+        return rotation_to_euler(R)  # raises with its message
+    return math.atan2(r10, r11), pitch, math.atan2(r02, r22)
+
+
+def _wrap_entries(y: np.ndarray, mask: np.ndarray) -> None:
+    """Wrap y[mask] to (-pi, pi] in place (values inside are kept)."""
+    values = y[mask]
+    pi = math.pi
+    if not all(-pi < a <= pi for a in values.tolist()):
+        y[mask] = _wrap(values)
+
+
+def _wrap_angles(x: np.ndarray) -> None:
+    """Wrap the state's angles x[3:6] to (-pi, pi] in place (values inside are kept)."""
+    p, w, r = x[3:6].tolist()
+    pi = math.pi
+    if not (-pi < p <= pi and -pi < w <= pi and -pi < r <= pi):
+        x[ANGLES] = _wrap(x[ANGLES])
 
 
 def transition_matrix(r: float, p: float, dt: float) -> np.ndarray:
@@ -196,6 +270,24 @@ def state_measurement(
         InputError: a pose whose reference is not the world frame (0): the
             paper's filter has no keyframes; a pitch near +-90 deg; malformed arrays.
     """
+    return _state_measurement(frame, world_frame_velocity, fallback_rotation, variances=True)
+
+
+_POSE_ROWS, _VELOCITY_ROWS, _NO_ROWS = np.arange(0, 6), np.arange(6, 12), np.zeros(0, dtype=int)
+for _rows in (_POSE_ROWS, _VELOCITY_ROWS, _NO_ROWS):
+    _rows.setflags(write=False)
+
+
+def _state_measurement(
+    frame: FrameMeasurement,
+    world_frame_velocity: bool,
+    fallback_rotation: np.ndarray | None,
+    *,
+    variances: bool,
+) -> StateMeasurement:
+    """:func:`state_measurement`; without ``variances`` (the paper's R_k presets do not
+    read them) the ``variance`` field is empty and the covariances are neither read nor
+    checked."""
     k = frame.index
     rows: list[np.ndarray] = []
     z: list[np.ndarray] = []
@@ -210,21 +302,25 @@ def state_measurement(
             )
         R_wc = as_matrix(pose.rotation, f"frame {k}: pose.rotation", (3, 3))
         p_wc = as_vector(pose.position, f"frame {k}: pose.position", 3)
-        cov = as_matrix(pose.covariance, f"frame {k}: pose.covariance", (6, 6))
-        roll, pitch, yaw = rotation_to_euler(R_wc)
+        roll, pitch, yaw = _euler_angles(R_wc)
         _check_pitch(pitch, f"frame {k}: measured pose")
-        E = euler_rate_matrix(roll, pitch)
-        rows.append(np.arange(0, 6))
-        z.append(np.concatenate([p_wc, [pitch, yaw, roll]]))
-        var.append(
-            np.concatenate([np.diag(R_wc @ cov[3:, 3:] @ R_wc.T), np.diag(E @ cov[:3, :3] @ E.T)])
-        )
+        rows.append(_POSE_ROWS)
+        z.append(np.concatenate((p_wc, (pitch, yaw, roll))))
+        if variances:
+            cov = as_matrix(pose.covariance, f"frame {k}: pose.covariance", (6, 6))
+            E = euler_rate_matrix(roll, pitch)
+            var.append(
+                np.concatenate(
+                    [np.diag(R_wc @ cov[3:, 3:] @ R_wc.T), np.diag(E @ cov[:3, :3] @ E.T)]
+                )
+            )
     if frame.velocity is not None:
         vel = frame.velocity
         twist = as_vector(vel.twist, f"frame {k}: velocity.twist", 6)
-        cov = as_matrix(vel.covariance, f"frame {k}: velocity.covariance", (6, 6))
         v, w = twist[3:], twist[:3]
-        cov_v = cov[3:, 3:]
+        if variances:
+            cov = as_matrix(vel.covariance, f"frame {k}: velocity.covariance", (6, 6))
+            cov_v = cov[3:, 3:]
         if world_frame_velocity:
             if R_wc is None:
                 raise InputError(
@@ -232,13 +328,18 @@ def state_measurement(
                     "or fallback_rotation) to rotate the body-frame velocity into the world"
                 )
             v = R_wc @ v
-            cov_v = R_wc @ cov_v @ R_wc.T
-        rows.append(np.arange(6, 12))
-        z.append(np.concatenate([v, w]))
-        var.append(np.concatenate([np.diag(cov_v), np.diag(cov[:3, :3])]))
+            if variances:
+                cov_v = R_wc @ cov_v @ R_wc.T
+        rows.append(_VELOCITY_ROWS)
+        z.append(np.concatenate((v, w)))
+        if variances:
+            var.append(np.concatenate([np.diag(cov_v), np.diag(cov[:3, :3])]))
     if not rows:
-        return StateMeasurement(np.zeros(0, dtype=int), np.zeros(0), np.zeros(0))
-    return StateMeasurement(np.concatenate(rows), np.concatenate(z), np.concatenate(var))
+        return StateMeasurement(_NO_ROWS, np.zeros(0), np.zeros(0))
+    if len(rows) == 1:
+        return StateMeasurement(rows[0], z[0], var[0] if var else np.zeros(0))
+    both = np.concatenate(rows)
+    return StateMeasurement(both, np.concatenate(z), np.concatenate(var) if var else np.zeros(0))
 
 
 def state_to_tangent_jacobian(x: np.ndarray, *, world_frame_velocity: bool = False) -> np.ndarray:
