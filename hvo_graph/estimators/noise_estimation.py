@@ -156,38 +156,48 @@ def log_likelihood(
     P[:, :6, :6] = C[0]
     P[:, 6:, 6:] = 1e4 * np.eye(6)
     ll = np.zeros(m)
+    constant = 6.0 * np.log(2.0 * np.pi)
+    Pss, Psv, Pvs, Pvv = P[:, :6, :6], P[:, :6, 6:], P[:, 6:, :6], P[:, 6:, 6:]
     for k in range(1, len(t)):
         dt = t[k] - t[k - 1]
-        # predict (F = [[I, dt I], [0, I]])
+        # predict (F = [[I, dt I], [0, I]]), block by block in place (P stays symmetric)
         x[:, :6] += dt * x[:, 6:]
-        Pss, Psv, Pvv = P[:, :6, :6], P[:, :6, 6:], P[:, 6:, 6:]
-        new_ss = Pss + dt * (Psv + Psv.transpose(0, 2, 1)) + dt * dt * Pvv + Q * (dt**3 / 3)
-        new_sv = Psv + dt * Pvv + Q * (dt**2 / 2)
-        new_vv = Pvv + Q * dt
-        P = np.concatenate(
-            (
-                np.concatenate((new_ss, new_sv), axis=2),
-                np.concatenate((new_sv.transpose(0, 2, 1), new_vv), axis=2),
-            ),
-            axis=1,
-        )
-        # update with z = s_k (H = [I 0])
+        Pss += dt * (Psv + Pvs) + dt * dt * Pvv + Q * (dt**3 / 3)
+        Psv += dt * Pvv + Q * (dt**2 / 2)
+        Pvs[...] = Psv.transpose(0, 2, 1)
+        Pvv += Q * dt
+        # update with z = s_k (H = [I 0]): one Cholesky factor L of S; L^-1 by substitution
         S = P[:, :6, :6] + C[k][None]
         y = s[k][None] - x[:, :6]
         L = np.linalg.cholesky(S)
-        z = np.linalg.solve(L, y[:, :, None])[:, :, 0]
+        L_inv = _lower_inverse(L)
+        z = np.einsum("mij,mj->mi", L_inv, y)
         d2 = np.sum(z * z, axis=1)
         ll -= 0.5 * (
-            np.minimum(d2, gate)
-            + 2.0 * np.log(np.diagonal(L, axis1=1, axis2=2)).sum(axis=1)
-            + 6.0 * np.log(2.0 * np.pi)
+            np.minimum(d2, gate) + 2.0 * np.log(np.diagonal(L, axis1=1, axis2=2)).sum(axis=1)
         )
-        gain = np.linalg.solve(S, P[:, :6, :]).transpose(0, 2, 1)  # (M, 12, 6) = P H^T S^-1
+        ll -= 0.5 * constant
+        # gain P H^T S^-1, S^-1 = L^-T L^-1 (M, 12, 6)
+        gain = (P[:, :, :6] @ np.transpose(L_inv, (0, 2, 1))) @ L_inv
         gain[d2 > gate] = 0.0  # an outlier pose neither updates the state nor inflates Q
         x += np.einsum("mij,mj->mi", gain, y)
-        P = P - gain @ P[:, :6, :]
-        P = 0.5 * (P + P.transpose(0, 2, 1))
+        P -= gain @ P[:, :6, :]
+        P += P.transpose(0, 2, 1).copy()
+        P *= 0.5
     return ll
+
+
+def _lower_inverse(L: np.ndarray) -> np.ndarray:
+    """(M, n, n) inverses of lower-triangular L (M, n, n) by forward substitution: n
+    vectorised steps instead of M calls of LAPACK (M small systems per time step)."""
+    n = L.shape[1]
+    inv = np.zeros_like(L)
+    diagonal = 1.0 / np.diagonal(L, axis1=1, axis2=2)  # (M, n)
+    for i in range(n):
+        row = -np.einsum("mj,mjk->mk", L[:, i, :i], inv[:, :i, :])  # zeros for i = 0
+        row[:, i] = 1.0
+        inv[:, i, :] = row * diagonal[:, i : i + 1]
+    return inv
 
 
 def estimate_process_noise(
