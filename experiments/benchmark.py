@@ -23,7 +23,16 @@ run is just a longer duration) this script
    frames: where the time goes;
 5. runs a bare ``Pose3`` chain through ISAM2 (``--chain-poses``, nothing from
    hvo_graph): GTSAM 4.3's update cost grows with the number of poses, the
-   reason the default smoother keeps a window.
+   reason the default smoother keeps a window;
+6. puts each stage beside a reference on the same inputs (``--reference-frames``;
+   experiments/benchmark_references.py): the front end (4 and 20 points) beside a
+   bare numpy loop doing the same mathematics, the Kalman filter beside a plain
+   numpy 12-state loop, the fixed-lag smoother's updates beside a bare GTSAM
+   ``IncrementalFixedLagSmoother`` on a ``Pose3`` chain;
+7. runs ``hvo-graph estimate`` end to end (``--cli-frames``, default 30,000 frames)
+   for the default smoother, the fixed-lag smoother and the Kalman filter, each in
+   a fresh process on a tracks CSV written as ``hvo-graph simulate`` writes it:
+   wall and CPU time and the process's peak memory.
 
 Columns: overall frames per second = frames / (all updates + ``trajectory()``);
 the CPU time of the run (``time.process_time``, steadier than wall time when
@@ -42,6 +51,8 @@ Usage::
 
     .venv/bin/python experiments/benchmark.py                    # 1,000 to 100,000 frames
     .venv/bin/python experiments/benchmark.py --quick            # 300 and 1,000 frames
+    .venv/bin/python experiments/benchmark.py --sizes 3000 --components kalman fixed-lag
+        --no-memory --profile-frames 0 --chain-poses 0 --cli-frames 3000   # one line
     .venv/bin/python experiments/benchmark.py --sizes 3000 --components isam2 fixed-lag
     .venv/bin/python experiments/benchmark.py --sizes 3000 --components isam2 isam2-cov
         --repeat 3 --profile-component fixed-lag --no-memory --out /tmp/perf.md  # one line
@@ -55,6 +66,7 @@ import cProfile
 import dataclasses
 import gc
 import importlib.metadata
+import importlib.util
 import json
 import os
 import pickle
@@ -66,6 +78,7 @@ import subprocess
 import sys
 import tempfile
 import time
+import types
 from collections.abc import Sequence
 from dataclasses import dataclass
 from pathlib import Path
@@ -595,8 +608,9 @@ def performance_markdown(
     profile: Profile | None,
     elapsed: float,
     chain: tuple[int, Sequence[float]] | None = None,
+    sections: Sequence[tuple[str, str]] = (),
 ) -> str:
-    """The whole docs/performance.md."""
+    """The whole docs/performance.md (``sections``: (title, Markdown) appended)."""
     parts = [
         "# Performance",
         "",
@@ -656,6 +670,8 @@ def performance_markdown(
             "",
             curve_section(timings),
         ]
+    for title, text in sections:
+        parts += ["", f"## {title}", "", text]
     if chain is not None:
         parts += ["", "## Why the default smoother keeps a window", "", chain_section(*chain)]
     if profile is not None:
@@ -748,6 +764,59 @@ def run_sizes(
     return timings, skipped, profile_input
 
 
+def _sibling(name: str) -> types.ModuleType:
+    """experiments/<name>.py as a module (this folder is not a package)."""
+    path = Path(__file__).resolve().parent / f"{name}.py"
+    spec = importlib.util.spec_from_file_location(name, path)
+    assert spec is not None and spec.loader is not None
+    module = importlib.util.module_from_spec(spec)
+    sys.modules[name] = module  # dataclasses look their module up there
+    spec.loader.exec_module(module)
+    return module
+
+
+def reference_sections(args: argparse.Namespace) -> list[tuple[str, str]]:
+    """Each stage beside its reference, and the end-to-end command-line runs
+    (experiments/benchmark_references.py), as (title, Markdown) sections."""
+    refs = _sibling("benchmark_references")
+    sections = []
+    frames = args.reference_frames
+    frames = (300 if args.quick else 3000) if frames is None else frames
+    if frames:
+        _progress(f"references: {frames:,} frames")
+        measured = run_frontend(simulate_frames(frames, seed=args.seed))[0]
+        pairs = [
+            refs.frontend_pair(4, frames, args.seed, args.repeat),
+            refs.frontend_pair(20, frames, args.seed, args.repeat),
+            refs.kalman_pair(measured, args.repeat),
+            refs.fixed_lag_pair(measured, args.repeat),
+        ]
+        text = "\n\n".join(
+            [
+                "Each stage on the same inputs as a bare loop doing the same work with only "
+                "numpy or GTSAM (experiments/benchmark_references.py describes each); wall "
+                "time, the fastest of `--repeat` runs.",
+                refs.pairs_section(pairs),
+            ]
+        )
+        sections.append(("Each stage beside its reference", text))
+    cli = args.cli_frames
+    cli = (300 if args.quick else 30000) if cli is None else cli
+    if cli:
+        _progress(f"end to end: hvo-graph estimate on {cli:,} frames")
+        text = "\n\n".join(
+            [
+                f"`hvo-graph estimate` on a {cli:,}-frame tracks CSV of the paper's scenario "
+                "(written as `hvo-graph simulate` writes it), one fresh process per method, as "
+                "a user runs it: reading the CSV, the front end, the estimator and every "
+                "output file.",
+                refs.cli_section(refs.cli_runs(cli, args.seed)),
+            ]
+        )
+        sections.append(("End to end", text))
+    return sections
+
+
 def build_parser() -> argparse.ArgumentParser:
     """The command line (see the module docstring)."""
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
@@ -778,6 +847,17 @@ def build_parser() -> argparse.ArgumentParser:
         type=int,
         help=f"poses of the bare ISAM2 chain (default {DEFAULT_CHAIN_POSES:,}, --quick "
         f"{QUICK_CHAIN_POSES:,}, 0 none)",
+    )
+    parser.add_argument(
+        "--reference-frames",
+        type=int,
+        help="frames of each stage beside its reference (default 3,000, --quick 300, 0 none)",
+    )
+    parser.add_argument(
+        "--cli-frames",
+        type=int,
+        help="frames of the end-to-end hvo-graph estimate runs (default 30,000, --quick "
+        "300, 0 none)",
     )
     parser.add_argument("--repeat", type=int, default=1, help="keep the fastest of N timed runs")
     parser.add_argument("--seed", type=int, default=0, help="pixel-noise seed")
@@ -841,6 +921,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         _progress(f"bare ISAM2 chain: {chain_poses:,} poses")
         chain = (chain_poses, chain_growth(chain_poses))
 
+    sections = reference_sections(args)
     table = results_table(timings, skipped, memory)
     print(table)
     if any(t.component != "frontend" for t in timings):
@@ -859,6 +940,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         profile=profile,
         elapsed=time.perf_counter() - started,
         chain=chain,
+        sections=sections,
     )
     write_text_atomic(args.out, text)
     _progress(f"wrote {args.out} in {time.perf_counter() - started:.0f} s")

@@ -156,6 +156,35 @@ def test_benchmark_quick_writes_the_table_machine_and_profile(tmp_path, capsys):
     assert "cProfile of smoother: ISAM2 on 300 frames" in page
     assert "update" in page.split("## Where the time goes")[1]
     assert not list(tmp_path.glob(".*tmp*"))
+    # Each stage beside its reference, and hvo-graph estimate end to end (300 frames).
+    pairs = section_rows(page, "## Each stage beside its reference")
+    assert [r[0] for r in pairs] == [
+        "front end, 4 points",
+        "front end, 20 points",
+        "Kalman filter (paper)",
+        "smoother: fixed-lag (1 s), updates",
+    ]
+    for r in pairs:
+        assert number(r[1]) == 300 and number(r[2]) > 0 and number(r[4]) > 0
+        assert number(r[5]) == pytest.approx(number(r[4]) / number(r[2]), rel=0.1, abs=0.06)
+    cli = section_rows(page, "## End to end")
+    assert [r[0] for r in cli] == [
+        f"`hvo-graph estimate --method {m}`" for m in ("smoother", "fixed-lag", "kalman")
+    ]
+    for r in cli:  # a failed run would say "failed (exit code)" in the wall-time column
+        assert number(r[1]) == 300 and number(r[2]) > 0 and number(r[5]) > 0
+
+
+def section_rows(markdown: str, heading: str) -> list[list[str]]:
+    """Cells of the first table after ``heading``."""
+    lines = markdown.split(heading, 1)[1].splitlines()
+    start = next(i for i, line in enumerate(lines) if line.startswith("|"))
+    rows = []
+    for line in lines[start + 2 :]:
+        if not line.startswith("|"):
+            break
+        rows.append([cell.strip() for cell in line.strip("|").split("|")])
+    return rows
 
 
 def test_benchmark_skips_batch_above_its_limit_and_says_so(tmp_path):
