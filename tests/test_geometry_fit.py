@@ -1,0 +1,131 @@
+"""The fast per-frame paths equal the straightforward, argument-checking functions.
+
+The front end fits each H_d pose with :mod:`hvo_graph.geometry._fit` (constants
+computed once per frame, one linearization shared by the gate and the noise), the
+velocity with one design matrix, the Kalman filter with Python-float Euler
+matrices, and the process-noise fit inverts its Cholesky factors by substitution.
+Each must give what the public functions (or numpy's own inverse) give.
+"""
+
+from __future__ import annotations
+
+import gtsam
+import numpy as np
+import pytest
+
+from hvo_graph.estimators.kalman_model import (
+    _euler_angles,
+    _euler_rates,
+    _rotation,
+    euler_rate_matrix,
+)
+from hvo_graph.estimators.noise_estimation import _lower_inverse
+from hvo_graph.frontend.velocity import flow_twist
+from hvo_graph.geometry._fit import PlaneTransfer, dlt, euclidean, known_normal_motion, plane_basis
+from hvo_graph.geometry._fit import retract as fast_retract
+from hvo_graph.geometry.continuous import velocity_design_matrix, velocity_known_normal
+from hvo_graph.geometry.decomposition import motion_from_homography_known_normal
+from hvo_graph.geometry.discrete import estimate_homography, euclidean_homography
+from hvo_graph.geometry.rotation import euler_to_rotation, rotation_to_euler
+from hvo_graph.geometry.transfer import (
+    pose_noise,
+    pose_normal_equations,
+    retract_motion,
+    transfer_chi2,
+)
+from hvo_graph.types import Plane
+
+TOL = 1e-12
+
+
+def plane_scene(n_points: int, seed: int):
+    """A tilted plane seen from two poses with pixel-like noise: m_ref, m_cur, plane, R, T."""
+    rng = np.random.default_rng(seed)
+    normal = np.array([0.1, -0.2, 1.0])
+    plane = Plane(2.0, normal / np.linalg.norm(normal))
+    xy = rng.uniform(-0.4, 0.4, (n_points, 2))
+    m_ref = np.column_stack((xy, np.ones(n_points)))
+    X_star = plane.distance * m_ref / (m_ref @ plane.normal)[:, None]
+    R = gtsam.Rot3.RzRyRx(0.05, -0.08, 0.03).matrix()
+    T = np.array([0.1, -0.05, 0.2])
+    X = X_star @ R.T + T
+    m_cur = X / X[:, 2:3]
+    m_cur[:, :2] += 1e-3 * rng.standard_normal((n_points, 2))
+    return m_ref, m_cur, plane, R, T
+
+
+def close(a, b) -> bool:
+    a, b = np.asarray(a), np.asarray(b)
+    return a.shape == b.shape and np.max(np.abs(a - b)) <= TOL * max(1.0, np.max(np.abs(b)))
+
+
+@pytest.mark.parametrize("n_points", [4, 20])
+@pytest.mark.parametrize("huber", [None, 2.0])
+def test_pose_fit_equals_the_transfer_functions(n_points, huber):
+    m_ref, m_cur, plane, R, T = plane_scene(n_points, seed=n_points)
+    sigma = 1e-3
+    fit = PlaneTransfer(m_ref, m_cur, plane, sigma)
+    # Away from the optimum, as in the first Gauss-Newton step.
+    R0, T0 = retract_motion(R, T, np.array([0.01, -0.02, 0.01, 0.03, 0.0, -0.02]))
+    info, grad = fit.normal_equations(R0, T0, huber)
+    info_ref, grad_ref = pose_normal_equations(R0, T0, m_ref, m_cur, plane, sigma, huber)
+    assert close(info, info_ref) and close(grad, grad_ref)
+    delta = np.linalg.solve(info, grad)
+    assert all(map(close, fast_retract(R0, T0, delta), retract_motion(R0, T0, delta)))
+    lin = fit.linearize(R0, T0)
+    assert close(fit.chi2(lin, info), transfer_chi2(R0, T0, m_ref, m_cur, plane, sigma, info))
+    for fast, reference in zip(
+        fit.noise(lin), pose_noise(R0, T0, m_ref, m_cur, plane, sigma), strict=True
+    ):
+        assert close(fast, reference)
+    keep = np.arange(n_points) != 1
+    sub = fit.subset(keep)
+    assert close(
+        sub.normal_equations(R0, T0)[0],
+        pose_normal_equations(R0, T0, m_ref[keep], m_cur[keep], plane, sigma)[0],
+    )
+
+
+@pytest.mark.parametrize("n_points", [4, 9])
+def test_homography_pose_equals_the_public_path(n_points):
+    m_ref, m_cur, plane, _, _ = plane_scene(n_points, seed=7)
+    H_ref, _ = estimate_homography(m_ref, m_cur)
+    H = dlt(m_ref, m_cur)
+    assert close(H, H_ref)
+    E = euclidean(H, m_ref, m_cur)
+    assert close(E, euclidean_homography(H_ref, m_ref, m_cur))
+    R_fast, t_fast = known_normal_motion(E, plane.normal, plane_basis(plane.normal))
+    R_ref, t_ref = motion_from_homography_known_normal(E, plane.normal)
+    assert close(R_fast, R_ref) and close(t_fast, t_ref)
+
+
+def test_flow_twist_equals_the_known_normal_solve():
+    rng = np.random.default_rng(3)
+    m0 = np.column_stack((rng.uniform(-0.4, 0.4, (8, 2)), np.ones(8)))
+    m1 = m0 + np.column_stack((0.01 * rng.standard_normal((8, 2)), np.zeros(8)))
+    normal = np.array([0.05, 0.1, 1.0])
+    plane = Plane(1.5, normal)
+    meas = flow_twist(m0, m1, 0.0, 1 / 30, plane, 1e-3)
+    mid, flow = 0.5 * (m0 + m1), (m1 - m0) * 30
+    w, v = velocity_known_normal(mid, flow, plane.normal, plane.distance)
+    assert close(meas.twist, -np.concatenate((w, v)))
+    A = velocity_design_matrix(mid, plane.normal)
+    J = -np.diag([1.0, 1.0, 1.0, 1.5, 1.5, 1.5])
+    expected = J @ ((2.0 * 1e-6 * 30**2) * np.linalg.inv(A.T @ A)) @ J.T
+    assert close(meas.covariance, expected)
+
+
+def test_kalman_euler_helpers_equal_the_rotation_functions():
+    rng = np.random.default_rng(5)
+    for r, p, w in rng.uniform(-1.5, 1.5, (50, 3)):
+        R = euler_to_rotation(r, p, w)
+        assert close(_rotation(r, p, w), R)
+        assert close(_euler_angles(R), rotation_to_euler(R))
+        assert close(_euler_rates(r, p, "x"), euler_rate_matrix(r, p))
+
+
+def test_lower_triangular_inverse_equals_numpy():
+    rng = np.random.default_rng(2)
+    A = rng.standard_normal((7, 6, 6))
+    L = np.linalg.cholesky(A @ A.transpose(0, 2, 1) + 6 * np.eye(6))
+    assert close(_lower_inverse(L), np.linalg.inv(L))
