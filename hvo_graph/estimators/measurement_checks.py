@@ -12,7 +12,7 @@ from collections.abc import Callable, Container, Sequence
 import gtsam
 import numpy as np
 
-from hvo_graph.errors import InputError, as_covariance, as_integer, as_rotation
+from hvo_graph.errors import InputError, as_covariance, as_integer, as_matrix, as_rotation
 from hvo_graph.estimators.factors import interval_weights
 from hvo_graph.types import FrameMeasurement, PoseMeasurement, VelocityMeasurement
 
@@ -23,18 +23,35 @@ def checked_covariance(matrix: object, name: str) -> np.ndarray:
     return 0.5 * (c + c.T)
 
 
-def checked_pose(pose: PoseMeasurement, k: int) -> tuple[gtsam.Pose3, np.ndarray, int]:
-    """(measured pose, covariance, reference index) of frame k's H_d pose, or InputError."""
+def checked_pose(
+    pose: PoseMeasurement, k: int, *, definite: bool = True
+) -> tuple[gtsam.Pose3, np.ndarray, int]:
+    """(measured pose, covariance, reference index) of frame k's H_d pose, or InputError.
+
+    ``definite=False`` leaves the covariance's positive definiteness to the caller
+    (:func:`checked_reference_covariance` with ``covariance`` tests it with the split).
+    """
     name = f"frame {k}: pose"
     R = as_rotation(pose.rotation, f"{name}.rotation")
     p = np.asarray(pose.position, dtype=float)
     if p.shape != (3,) or not np.all(np.isfinite(p)):
         raise InputError(f"{name}.position: expected a finite (3,) vector, got shape {p.shape}")
-    cov = checked_covariance(pose.covariance, f"{name}.covariance")
+    if definite:
+        cov = checked_covariance(pose.covariance, f"{name}.covariance")
+    else:
+        cov = _symmetric_covariance(pose.covariance, f"{name}.covariance")
     ref = as_integer(pose.reference, f"{name}.reference", 0, what="a frame index")
     if ref != 0 and ref >= k:
         raise InputError(f"{name}.reference: expected an earlier frame than {k}, got {ref}")
     return gtsam.Pose3(gtsam.Rot3(R), p), cov, int(ref)
+
+
+def _symmetric_covariance(matrix: object, name: str) -> np.ndarray:
+    """A finite, symmetric (6, 6) matrix, symmetrized (as_covariance without the factorization)."""
+    c = as_matrix(matrix, name, (6, 6))
+    if np.abs(c - c.T).max() > 1e-9 * np.abs(c).max():
+        raise InputError(f"{name}: expected a symmetric matrix")
+    return 0.5 * (c + c.T)
 
 
 def checked_velocity(velocity: VelocityMeasurement, k: int) -> tuple[np.ndarray, np.ndarray]:
@@ -71,22 +88,35 @@ def keyframe_model(pose: PoseMeasurement, k: int) -> tuple[gtsam.Pose3, np.ndarr
     return gtsam.Pose3(gtsam.Rot3(R), p), J
 
 
-def checked_reference_covariance(pose: PoseMeasurement, k: int) -> np.ndarray | None:
+def checked_reference_covariance(
+    pose: PoseMeasurement, k: int, covariance: np.ndarray | None = None
+) -> np.ndarray | None:
     """The pose's reference covariance (None when absent), symmetrized and checked.
 
     It must be a positive semi-definite part of the pose covariance: what is
-    left, the frame's own noise, must stay positive definite.
+    left, the frame's own noise, must stay positive definite. ``covariance``: the
+    pose covariance, checked but for its definiteness (``checked_pose(...,
+    definite=False)``): tested here too, in the same batched eigenvalue call.
     """
     if pose.reference_covariance is None:
+        if covariance is not None:
+            checked_covariance(covariance, f"frame {k}: pose.covariance")
         return None
     name = f"frame {k}: pose.reference_covariance"
     ref = np.asarray(pose.reference_covariance, dtype=float)
     if ref.shape != (6, 6) or not np.all(np.isfinite(ref)):
         raise InputError(f"{name}: expected a finite (6, 6) matrix")
     ref = 0.5 * (ref + ref.T)
-    own = np.asarray(pose.covariance, dtype=float) - ref
+    full = np.asarray(pose.covariance, dtype=float) if covariance is None else covariance
+    own = full - ref
     scale = max(1e-300, float(np.abs(ref).max()))
-    if np.linalg.eigvalsh(ref)[0] < -1e-9 * scale or not np.linalg.eigvalsh(own)[0] > 0:
+    if covariance is None:
+        smallest = np.linalg.eigvalsh(np.stack((ref, own)))[:, 0]
+    else:
+        smallest = np.linalg.eigvalsh(np.stack((ref, own, covariance)))[:, 0]
+        if not smallest[2] > 0:
+            raise InputError(f"frame {k}: pose.covariance: expected a positive definite matrix")
+    if smallest[0] < -1e-9 * scale or not smallest[1] > 0:
         raise InputError(
             f"{name}: expected a positive semi-definite part of pose.covariance "
             "(covariance - reference_covariance positive definite)"
@@ -187,7 +217,10 @@ def checked_frame(
     k, t = as_integer(frame.index, "frame.index", 0), float(frame.t)
     if not math.isfinite(t):
         raise InputError(f"frame {k}: t is not finite ({frame.t})")
-    pose_meas = None if frame.pose is None else checked_pose(frame.pose, k)
+    # With the split, the pose covariance's definiteness is tested with the split's
+    # eigenvalues (one batched call) instead of a Cholesky factorization of its own.
+    split = split_reference and frame.pose is not None
+    pose_meas = None if frame.pose is None else checked_pose(frame.pose, k, definite=not split)
     velocity = None if frame.velocity is None else checked_velocity(frame.velocity, k)
     if pose_meas is not None and pose_meas[2] != 0 and pose_meas[2] not in known:
         raise InputError(
@@ -198,9 +231,9 @@ def checked_frame(
         assert frame.velocity is not None
         nodes = twist_nodes(k, t, frame.velocity, times, indices, in_graph, lag)
         twist_meas = (*velocity, *nodes)
-    if pose_meas is not None and split_reference:
+    if pose_meas is not None and split:
         assert frame.pose is not None
-        reference = checked_reference_covariance(frame.pose, k)
+        reference = checked_reference_covariance(frame.pose, k, pose_meas[1])
         if reference is not None:
             pose_meas = (pose_meas[0], pose_meas[1] - reference, pose_meas[2], reference)
     return k, t, pose_meas, twist_meas
