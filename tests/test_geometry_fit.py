@@ -129,3 +129,14 @@ def test_lower_triangular_inverse_equals_numpy():
     A = rng.standard_normal((7, 6, 6))
     L = np.linalg.cholesky(A @ A.transpose(0, 2, 1) + 6 * np.eye(6))
     assert close(_lower_inverse(L), np.linalg.inv(L))
+
+
+def test_a_reused_pose_fit_equals_a_fresh_one():
+    m_ref, m_cur, plane, R, T = plane_scene(6, seed=11)
+    kept = PlaneTransfer(m_ref, m_ref.copy(), plane, 1e-3)
+    reused = PlaneTransfer.reuse(kept, m_ref, m_cur, plane, 1e-3)
+    assert reused is not kept and kept.m_cur is not m_cur  # the kept one is unchanged
+    fresh = PlaneTransfer(m_ref, m_cur, plane, 1e-3)
+    assert all(map(close, reused.normal_equations(R, T), fresh.normal_equations(R, T)))
+    other_plane = Plane(plane.distance, plane.normal)
+    assert PlaneTransfer.reuse(kept, m_ref, m_cur, other_plane, 1e-3).plane is other_plane

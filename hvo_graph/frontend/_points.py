@@ -67,3 +67,25 @@ def any_collinear(tolerance: float, *point_sets: np.ndarray) -> bool:
     xy = xy - xy.mean(axis=1, keepdims=True)
     smallest = np.linalg.svd(xy, compute_uv=False)[:, -1]
     return bool(np.any(smallest / np.sqrt(xy.shape[1]) < tolerance))
+
+
+class CollinearMemo:
+    """:func:`any_collinear` of one point set at a time, remembered for the last three
+    arrays (by identity): a reference's points recur in every pose measured against it,
+    and a frame's points in the next frame's velocity.
+
+    Args:
+        tolerance: RMS distance from the best line, normalized units.
+    """
+
+    def __init__(self, tolerance: float) -> None:
+        self.tolerance = tolerance
+        self._kept: list[tuple[np.ndarray, bool]] = []
+
+    def __call__(self, m: np.ndarray) -> bool:
+        for array, result in self._kept:
+            if array is m:
+                return result
+        result = any_collinear(self.tolerance, m)
+        self._kept = [(m, result), *self._kept[:2]]
+        return result

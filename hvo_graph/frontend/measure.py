@@ -33,8 +33,8 @@ import numpy as np
 
 from hvo_graph.errors import InputError, as_integer, as_number
 from hvo_graph.frontend._points import (
+    CollinearMemo,
     TrackedFrame,
-    any_collinear,
     common_points,
     normalized_by_id,
     shared_count,
@@ -203,6 +203,8 @@ class MeasurementFrontEnd:
         # (reference frame, n*, its plane) of the reference in use, and that plane's basis.
         self._reference_plane: tuple | None = None
         self._plane_basis: tuple[Plane, np.ndarray] | None = None
+        self._collinear = CollinearMemo(COLLINEAR_SIGMAS * self._sigma)
+        self._transfer_memo: PlaneTransfer | None = None
 
     @property
     def normal(self) -> np.ndarray | None:
@@ -279,16 +281,14 @@ class MeasurementFrontEnd:
             self._move_reference(earlier or self._previous)
             m_ref, m_cur, shared = common_points(self._reference, ids, m, with_ids=True)
         ref = self._reference
-        if len(m_ref) < self.config.min_points or any_collinear(
-            COLLINEAR_SIGMAS * self._sigma, m_ref, m_cur
-        ):
+        if len(m_ref) < self.config.min_points or self._collinear(m_ref) or self._collinear(m_cur):
             return None, None, None
         if self._normal is None:  # only while still on frame 0: estimate n* from parallax
             motion = self._homography_motion(m_ref, m_cur, None)
             if motion is None:
                 return None, None, None
         plane = self._plane_in(ref)
-        fit = PlaneTransfer(m_ref, m_cur, plane, self._sigma)
+        fit = self._transfer(m_ref, m_cur, plane)
         if self.config.pose_solver == "ippe":
             R, T = ippe_motion(m_ref, m_cur, plane)
             start = np.ones(len(m_ref), dtype=bool)
@@ -408,6 +408,13 @@ class MeasurementFrontEnd:
         self._reference_plane = (frame, self._normal, plane)
         return plane
 
+    def _transfer(self, m_ref: np.ndarray, m_cur: np.ndarray, plane: Plane) -> PlaneTransfer:
+        """The pose fit of m_ref -> m_cur, its reference constants kept while the reference
+        points and plane are the same arrays (``PlaneTransfer.reuse``)."""
+        kept = PlaneTransfer.reuse(self._transfer_memo, m_ref, m_cur, plane, self._sigma)
+        self._transfer_memo = kept
+        return kept
+
     def _basis(self, plane: Plane) -> np.ndarray:
         """:func:`~hvo_graph.geometry._fit.plane_basis` of the plane's normal (kept)."""
         if self._plane_basis is None or self._plane_basis[0] is not plane:
@@ -477,7 +484,7 @@ class MeasurementFrontEnd:
         if self._normal is None:
             return None
         m0, m1 = common_points(prev, frame.ids, frame.m)
-        if len(m0) < self.config.min_points or any_collinear(COLLINEAR_SIGMAS * self._sigma, m0):
+        if len(m0) < self.config.min_points or self._collinear(m0):
             return None
         motions = [(f.R, f.T) for f in (prev, frame) if f.R is not None]
         plane = mid_interval_plane(motions, self._normal, self.plane.distance)

@@ -14,6 +14,7 @@ pose's noise.
 
 from __future__ import annotations
 
+import copy
 from dataclasses import dataclass
 
 import gtsam
@@ -28,6 +29,7 @@ _SKEW_ROWS = np.array([0, 0, 1, 1, 2, 2])
 _SKEW_COLS = np.array([1, 2, 0, 2, 0, 1])
 _SKEW_SRC = np.array([2, 1, 2, 0, 1, 0])
 _SKEW_SIGN = np.array([-1.0, 1.0, 1.0, -1.0, -1.0, 1.0])
+_I2 = np.eye(2)[None]
 
 
 @dataclass(slots=True)
@@ -77,6 +79,23 @@ class PlaneTransfer:
         self._dX[:, :, 3:] = -np.eye(3)
         self._P = np.zeros((N, 2, 3))
 
+    @classmethod
+    def reuse(
+        cls,
+        kept: PlaneTransfer | None,
+        m_ref: np.ndarray,
+        m_cur: np.ndarray,
+        plane: Plane,
+        sigma: float,
+    ) -> PlaneTransfer:
+        """A :class:`PlaneTransfer`, sharing ``kept``'s constants when its reference points
+        and plane are the very same arrays (the same reference and tracks as before)."""
+        if kept is None or kept.m_ref is not m_ref or kept.plane is not plane:
+            return cls(m_ref, m_cur, plane, sigma)
+        other = copy.copy(kept)
+        other.m_cur, other.current, other.sigma = m_cur, m_cur[:, :2], sigma
+        return other
+
     def __len__(self) -> int:
         return len(self.m_ref)
 
@@ -92,7 +111,7 @@ class PlaneTransfer:
         """
         X = self.X_star @ R.T + T
         z = X[:, 2]
-        if not np.all(z > 0):
+        if not z.min() > 0:  # (NaN too)
             raise InputError("points behind the camera: a plane point has non-positive depth")
         P = self._P.copy()
         P[:, 0, 0] = P[:, 1, 1] = 1.0 / z
@@ -102,7 +121,7 @@ class PlaneTransfer:
         dX[:, _SKEW_ROWS, _SKEW_COLS] = X[:, _SKEW_SRC] * _SKEW_SIGN
         J = P @ dX
         A = P @ R @ self.dXstar2
-        cov = self.sigma**2 * (np.eye(2)[None] + A @ np.transpose(A, (0, 2, 1)))
+        cov = self.sigma**2 * (_I2 + A @ np.transpose(A, (0, 2, 1)))
         JtW = np.transpose(J, (0, 2, 1)) @ np.linalg.inv(cov)
         return Linearization(J, JtW, residual, A, cov)
 
