@@ -45,8 +45,6 @@ from hvo_graph.geometry._fit import (
     dlt,
     euclidean,
     known_normal_motion,
-    plane_basis,
-    retract,
 )
 from hvo_graph.geometry.camera import CameraModel
 from hvo_graph.geometry.continuous import motion_after_twist
@@ -202,9 +200,8 @@ class MeasurementFrontEnd:
         self._last_twist = np.zeros(6)  # the latest measured [w; v] (predicts lost frames)
         # (reference frame, n*, its plane) of the reference in use, and that plane's basis.
         self._reference_plane: tuple | None = None
-        self._plane_basis: tuple[Plane, np.ndarray] | None = None
         self._collinear = CollinearMemo(COLLINEAR_SIGMAS * self._sigma)
-        self._transfer_memo: PlaneTransfer | None = None
+        self._fit: PlaneTransfer | None = None  # the latest pose fit
 
     @property
     def normal(self) -> np.ndarray | None:
@@ -288,22 +285,23 @@ class MeasurementFrontEnd:
             if motion is None:
                 return None, None, None
         plane = self._plane_in(ref)
-        fit = self._transfer(m_ref, m_cur, plane)
+        # The reference's constants are kept while the reference and tracks stay the same.
+        fit = self._fit = PlaneTransfer.reuse(self._fit, m_ref, m_cur, plane, self._sigma)
         if self.config.pose_solver == "ippe":
             R, T = ippe_motion(m_ref, m_cur, plane)
             start = np.ones(len(m_ref), dtype=bool)
         else:
-            motion = self._homography_motion(m_ref, m_cur, plane, self._basis(plane))
+            motion = self._homography_motion(m_ref, m_cur, plane, fit.basis)
             if motion is None:
                 return None, None, None
             R, T, start = motion
         # RANSAC's inliers start the refinement; the gate at the refined pose, on every
         # shared point, decides (RANSAC's mask comes from a noisy minimal sample).
         robust = self.config.outlier_chi2 is not None and len(m_ref) >= ROBUST_MIN_POINTS
-        everything = bool(start.all())
-        R, T, info = self._refine(
-            R, T, fit if everything else fit.subset(start), HUBER if robust else None
-        )
+        steps = 0 if self.config.pose_solver == "ippe" else self.config.refine_iterations + 1
+        start_fit = fit if start.all() else fit.subset(start)
+        huber = HUBER if robust else None
+        R, T, info = start_fit.refine(R, T, steps + (3 if huber and steps else 0), huber)
         lin = None  # the linearization at the final (R, T) on the points kept
         keep = np.ones(len(m_ref), dtype=bool)
         if self.config.outlier_chi2 is not None and len(m_ref) >= ROBUST_MIN_POINTS:
@@ -317,7 +315,7 @@ class MeasurementFrontEnd:
             fit, lin = fit.subset(keep), None
             m_ref, m_cur = m_ref[keep], m_cur[keep]
         if refit:
-            R, T, info = self._refine(R, T, fit)
+            R, T, info = fit.refine(R, T, steps)
             lin = None
         R_rc = R.T.copy()  # the camera pose T_rc (camera_pose_from_motion)
         p_rc = -R.T @ T
@@ -346,19 +344,6 @@ class MeasurementFrontEnd:
         )
         # Motion world -> current: X = R (R_ref X_w + T_ref) + T.
         return R @ ref.R, R @ ref.T + T, pose
-
-    def _refine(
-        self, R: np.ndarray, T: np.ndarray, fit: PlaneTransfer, huber: float | None = None
-    ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        """Gauss-Newton steps on the weighted transfer error (:func:`~hvo_graph.geometry.
-        transfer.pose_normal_equations`): (R, T, information before the last step)."""
-        info = np.eye(6)
-        for _ in range(self.config.refine_iterations + 1 + (3 if huber else 0)):
-            info, grad = fit.normal_equations(R, T, huber)
-            if self.config.pose_solver == "ippe":
-                break  # IPPE is reported as OpenCV gives it, without our refinement
-            R, T = retract(R, T, np.linalg.solve(info, grad))
-        return R, T, info
 
     def _move_reference(self, frame: TrackedFrame | None) -> None:
         assert frame is not None and self._reference is not None
@@ -407,19 +392,6 @@ class MeasurementFrontEnd:
         plane = Plane(self.plane.distance + float(n @ frame.T), n)
         self._reference_plane = (frame, self._normal, plane)
         return plane
-
-    def _transfer(self, m_ref: np.ndarray, m_cur: np.ndarray, plane: Plane) -> PlaneTransfer:
-        """The pose fit of m_ref -> m_cur, its reference constants kept while the reference
-        points and plane are the same arrays (``PlaneTransfer.reuse``)."""
-        kept = PlaneTransfer.reuse(self._transfer_memo, m_ref, m_cur, plane, self._sigma)
-        self._transfer_memo = kept
-        return kept
-
-    def _basis(self, plane: Plane) -> np.ndarray:
-        """:func:`~hvo_graph.geometry._fit.plane_basis` of the plane's normal (kept)."""
-        if self._plane_basis is None or self._plane_basis[0] is not plane:
-            self._plane_basis = (plane, plane_basis(plane.normal))
-        return self._plane_basis[1]
 
     def _homography_motion(
         self,

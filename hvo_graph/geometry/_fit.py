@@ -78,6 +78,7 @@ class PlaneTransfer:
         self._dX = np.zeros((N, 3, 6))
         self._dX[:, :, 3:] = -np.eye(3)
         self._P = np.zeros((N, 2, 3))
+        self._basis: np.ndarray | None = None
 
     @classmethod
     def reuse(
@@ -95,6 +96,26 @@ class PlaneTransfer:
         other = copy.copy(kept)
         other.m_cur, other.current, other.sigma = m_cur, m_cur[:, :2], sigma
         return other
+
+    @property
+    def basis(self) -> np.ndarray:
+        """(2, 3) :func:`plane_basis` of the plane's normal (computed once)."""
+        if self._basis is None:
+            self._basis = plane_basis(self.plane.normal)
+        return self._basis
+
+    def refine(
+        self, R: np.ndarray, T: np.ndarray, steps: int, huber: float | None = None
+    ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """Gauss-Newton ``steps`` on the weighted transfer error (:meth:`normal_equations`,
+        ``huber`` as there) from (R, T): (R, T, information before the last step; with 0
+        steps, at (R, T))."""
+        info, grad = self.normal_equations(R, T, huber)
+        for step in range(steps):
+            if step:
+                info, grad = self.normal_equations(R, T, huber)
+            R, T = retract(R, T, np.linalg.solve(info, grad))
+        return R, T, info
 
     def __len__(self) -> int:
         return len(self.m_ref)
