@@ -59,6 +59,7 @@ from hvo_graph.types import (
     FrameMeasurement,
     FrameObservations,
     Plane,
+    PointObservations,
     PoseMeasurement,
     VelocityMeasurement,
 )
@@ -201,6 +202,7 @@ class MeasurementFrontEnd:
         self._rejections: dict[int, int] = {}
         self._excluded: set[int] = set()
         self._rejected_now = 0
+        self._rejected_ids: list[int] = []
         self._last_twist = np.zeros(6)  # the latest measured [w; v] (predicts lost frames)
 
     @property
@@ -219,6 +221,7 @@ class MeasurementFrontEnd:
             keep = ~np.isin(ids, list(self._excluded))
             ids, m = ids[keep], m[keep]
         self._rejected_now = 0
+        self._rejected_ids = []
         if self._reference is None:
             self._reference = TrackedFrame(obs.index, obs.t, ids, m, np.eye(3), np.zeros(3))
             self._world_index = obs.index
@@ -240,7 +243,21 @@ class MeasurementFrontEnd:
             self._move_reference(frame)
         self._previous = frame
         rejected = self._rejected_now + len(obs.ids) - len(ids)
-        return FrameMeasurement(obs.index, obs.t, pose, velocity, len(obs.ids), rejected)
+        points = self._points(ids, m)
+        return FrameMeasurement(obs.index, obs.t, pose, velocity, len(obs.ids), rejected, points)
+
+    def _points(self, ids: np.ndarray, m: np.ndarray) -> PointObservations | None:
+        """The frame's kept points (gate rejections left out) for pixel-level estimators."""
+        if self._normal is None:
+            return None
+        keep = ~np.isin(ids, self._rejected_ids) if self._rejected_ids else slice(None)
+        return PointObservations(
+            ids=ids[keep],
+            m=m[keep, :2] / m[keep, 2:3],
+            sigma=self._sigma,
+            normal=self._normal,
+            distance=self.plane.distance,
+        )
 
     @property
     def excluded_tracks(self) -> frozenset[int]:
@@ -250,6 +267,7 @@ class MeasurementFrontEnd:
     def _reject(self, ids: np.ndarray) -> None:
         """Count one rejection for each id; exclude the ids that reached ``reject_after``."""
         self._rejected_now += len(ids)
+        self._rejected_ids.extend(ids.tolist())
         limit = self.config.reject_after
         for i in ids.tolist():
             self._rejections[i] = self._rejections.get(i, 0) + 1
