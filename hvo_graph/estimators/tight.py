@@ -54,13 +54,7 @@ from hvo_graph.estimators.factors import motion_factor
 from hvo_graph.estimators.noise_estimation import ProcessNoiseSchedule
 from hvo_graph.estimators.process_noise import DEFAULT_ACCELERATION_SIGMA, MotionNoise
 from hvo_graph.estimators.process_noise import acceleration_sigma as check_acceleration_sigma
-from hvo_graph.estimators.solvers import (
-    ONLINE_WINDOW,
-    Backend,
-    BatchBackend,
-    FixedLagBackend,
-    Isam2Backend,
-)
+from hvo_graph.estimators.solvers import Backend, BatchBackend, FixedLagBackend
 from hvo_graph.types import FrameMeasurement, PointObservations, StateEstimate, Trajectory
 
 __all__ = [
@@ -161,6 +155,66 @@ class _LandmarkFixedLag(FixedLagBackend):
         self._collect_frozen()
 
 
+class _WholeIsam2(BatchBackend):
+    """One ISAM2 over the whole sequence for the online estimates; the batch optimum,
+    started from ISAM2's estimate, for the final ones.
+
+    Not the homography graph's window (:class:`~hvo_graph.estimators.solvers.Isam2Backend`):
+    landmarks observed for the whole sequence never leave a window, so every
+    marginalization would hang one more dense linear factor on them and the cost per
+    frame would grow with the sequence.
+    """
+
+    solver = "isam2"
+
+    def __init__(
+        self, params: gtsam.ISAM2Params, *, max_iterations: int, compute_covariance: bool
+    ) -> None:
+        super().__init__(max_iterations=max_iterations, compute_covariance=compute_covariance)
+        self.isam = gtsam.ISAM2(params)
+        # Held so the custom factors' callbacks are not handed copies (solvers docstring).
+        self.theta = self.isam.getLinearizationPoint()
+
+    def current_pose(self, index: int) -> gtsam.Pose3:
+        return self.isam.calculateEstimatePose3(X(index))
+
+    def add(
+        self,
+        graph: gtsam.NonlinearFactorGraph,
+        values: gtsam.Values,
+        index: int,
+        stamp_time: float,
+    ) -> tuple[gtsam.Pose3, np.ndarray, np.ndarray | None]:
+        super().add(graph, values, index, stamp_time)
+        self.isam.update(graph, values)
+        pose = self.isam.calculateEstimatePose3(X(index))
+        twist = self.isam.calculateEstimateVector(V(index))
+        covariance = None
+        if self.compute_covariance:
+            joint = self.isam.jointMarginalCovariance([X(index), V(index)]).fullMatrix()
+            covariance = 0.5 * (joint + joint.T)
+        return pose, twist, covariance
+
+    def final(self, indices: Sequence[int], *, marginals: bool = True):  # type: ignore[override]
+        if self._result is None:  # start the batch solve from ISAM2's estimate
+            best = self.isam.calculateBestEstimate()
+            start = gtsam.Values()
+            for key in self.initial.keys():  # pruned (rejected) landmarks stay out
+                _copy(best, start, key)
+            self.initial = start
+        return super().final(indices, marginals=marginals)
+
+
+def _copy(source: gtsam.Values, target: gtsam.Values, key: int) -> None:
+    kind = gtsam.Symbol(key).chr()
+    if kind == ord("x"):
+        target.insert(key, source.atPose3(key))
+    elif kind == _LANDMARK:
+        target.insert(key, source.atPoint3(key))
+    else:
+        target.insert(key, source.atVector(key))
+
+
 class TightSmoother(Estimator):
     """Pixels of plane points fused with the motion model in one GTSAM graph.
 
@@ -236,9 +290,8 @@ class TightSmoother(Estimator):
                 _isam2_params(threshold, skip), self.lag, compute_covariance=self.compute_covariance
             )
         else:
-            self.backend = Isam2Backend(
+            self.backend = _WholeIsam2(
                 _isam2_params(threshold, skip),
-                window=ONLINE_WINDOW,
                 max_iterations=max_iterations,
                 compute_covariance=self.compute_covariance,
             )
