@@ -846,7 +846,9 @@ def main(argv: Sequence[str] | None = None) -> int:
     if profile_frames:
         if profile_input is None:
             _progress(f"profile: measuring {profile_frames:,} frames")
-            profile_input = run_frontend(simulate_frames(profile_frames, seed=args.seed, num_points=args.num_points))[0]
+            profile_input = run_frontend(
+                simulate_frames(profile_frames, seed=args.seed, num_points=args.num_points)
+            )[0]
         _progress(f"profile: {args.profile_component} on {profile_frames:,} frames")
         profile = profile_component(profile_input, args.profile_component)
 

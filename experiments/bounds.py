@@ -125,8 +125,10 @@ def frames_csv(results: list[dict]) -> str:
     posterior = [r["frames"][0] for r in results]
     memoryless = [r["frames"][1] for r in results]
     t = posterior[0].t
-    lines = ["t,posterior_position_m,posterior_orientation_deg,memoryless_position_m,"
-             "memoryless_orientation_deg"]
+    lines = [
+        "t,posterior_position_m,posterior_orientation_deg,memoryless_position_m,"
+        "memoryless_orientation_deg"
+    ]
     for k in range(len(t)):
         values = [
             np.sqrt(np.mean([b.position[k] ** 2 for b in posterior])),

@@ -44,7 +44,7 @@ def test_the_motion_prior_lowers_the_bound(scenario):
     assert np.all(loose.position[later] <= memoryless.position[later] * 1.0001)
     assert np.all(loose.orientation[later] <= memoryless.orientation[later] * 1.0001)
     assert tight.rmse(1.0)[0] < 0.6 * memoryless.rmse(1.0)[0]
-    with pytest.raises(InputError, match="t_start: 5.0 s leaves no frame"):
+    with pytest.raises(InputError, match=r"t_start: 5\.0 s leaves no frame"):
         tight.rmse(5.0)
 
 

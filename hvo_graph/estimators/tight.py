@@ -10,7 +10,7 @@ model pools the information of every frame on the landmarks and on the poses.
 Variables (keys from ``gtsam.symbol_shorthand``): X(k), the pose T_wc
 (``gtsam.Pose3``, W = F*, the first camera frame); V(k), the body twist [w; v]
 (6-vector, contract sign); L(j), one ``Point3`` in W per track (a new key when a
-track comes back after its landmark left the online window). Factors:
+track comes back after its landmark left the online problem). Factors:
 
 - world: X(k0) = I (standard deviation :data:`DEFAULT_WORLD_SIGMA`); together with
   the plane it fixes the gauge (W is the first camera frame by definition, so this
@@ -54,7 +54,12 @@ from hvo_graph.estimators.factors import motion_factor
 from hvo_graph.estimators.noise_estimation import ProcessNoiseSchedule
 from hvo_graph.estimators.process_noise import DEFAULT_ACCELERATION_SIGMA, MotionNoise
 from hvo_graph.estimators.process_noise import acceleration_sigma as check_acceleration_sigma
-from hvo_graph.estimators.solvers import Backend, BatchBackend, FixedLagBackend
+from hvo_graph.estimators.solvers import Backend, BatchBackend
+from hvo_graph.estimators.tight_solvers import (
+    LandmarkFixedLagBackend,
+    WindowIsam2Backend,
+    tight_isam2_params,
+)
 from hvo_graph.types import FrameMeasurement, PointObservations, StateEstimate, Trajectory
 
 __all__ = [
@@ -91,7 +96,6 @@ DEFAULT_INITIAL_TWIST_SIGMA: float = 10.0
 
 _ZERO6 = np.zeros(6)
 _UNIT_CALIBRATION = gtsam.Cal3_S2(1.0, 1.0, 0.0, 0.0, 0.0)
-_LANDMARK = ord("l")
 
 
 def back_project(
@@ -116,111 +120,13 @@ def back_project(
     return p + s * ray if s > 0 else None
 
 
-def _isam2_params(threshold: float, skip: int) -> gtsam.ISAM2Params:
-    """ISAM2 parameters: poses and landmarks relinearize (every factor is affine in V)."""
-    params = gtsam.ISAM2Params()
-    thresholds = gtsam.ISAM2ThresholdMap()
-    thresholds.insert(("x", np.full(6, threshold)))
-    thresholds.insert(("v", np.full(6, np.inf)))
-    thresholds.insert(("l", np.full(3, threshold)))
-    params.setRelinearizeThreshold(thresholds)
-    params.relinearizeSkip = skip
-    params.enablePartialRelinearizationCheck = True
-    params.findUnusedFactorSlots = True
-    # QR: the world prior and the plane rows are far stiffer than the rest.
-    params.setFactorization("QR")
-    return params
-
-
-class _LandmarkFixedLag(FixedLagBackend):
-    """The fixed-lag back end, with every landmark a factor touches stamped with the frame
-    (a landmark stays in the window while it is observed)."""
-
-    def _update(
-        self,
-        graph: gtsam.NonlinearFactorGraph,
-        values: gtsam.Values,
-        index: int,
-        stamp_time: float,
-    ) -> None:
-        stamp = self.stamp(stamp_time)
-        self._freeze_leaving(stamp)
-        stamps = {X(index): stamp, V(index): stamp}
-        for i in range(graph.size()):
-            for key in graph.at(i).keys():
-                if gtsam.Symbol(key).chr() == _LANDMARK:
-                    stamps[key] = stamp
-        self.smoother.update(graph, values, stamps)
-        self.window.append((index, stamp))
-        self._collect_frozen()
-
-
-class _WholeIsam2(BatchBackend):
-    """One ISAM2 over the whole sequence for the online estimates; the batch optimum,
-    started from ISAM2's estimate, for the final ones.
-
-    Not the homography graph's window (:class:`~hvo_graph.estimators.solvers.Isam2Backend`):
-    landmarks observed for the whole sequence never leave a window, so every
-    marginalization would hang one more dense linear factor on them and the cost per
-    frame would grow with the sequence.
-    """
-
-    solver = "isam2"
-
-    def __init__(
-        self, params: gtsam.ISAM2Params, *, max_iterations: int, compute_covariance: bool
-    ) -> None:
-        super().__init__(max_iterations=max_iterations, compute_covariance=compute_covariance)
-        self.isam = gtsam.ISAM2(params)
-        # Held so the custom factors' callbacks are not handed copies (solvers docstring).
-        self.theta = self.isam.getLinearizationPoint()
-
-    def current_pose(self, index: int) -> gtsam.Pose3:
-        return self.isam.calculateEstimatePose3(X(index))
-
-    def add(
-        self,
-        graph: gtsam.NonlinearFactorGraph,
-        values: gtsam.Values,
-        index: int,
-        stamp_time: float,
-    ) -> tuple[gtsam.Pose3, np.ndarray, np.ndarray | None]:
-        super().add(graph, values, index, stamp_time)
-        self.isam.update(graph, values)
-        pose = self.isam.calculateEstimatePose3(X(index))
-        twist = self.isam.calculateEstimateVector(V(index))
-        covariance = None
-        if self.compute_covariance:
-            joint = self.isam.jointMarginalCovariance([X(index), V(index)]).fullMatrix()
-            covariance = 0.5 * (joint + joint.T)
-        return pose, twist, covariance
-
-    def final(self, indices: Sequence[int], *, marginals: bool = True):  # type: ignore[override]
-        if self._result is None:  # start the batch solve from ISAM2's estimate
-            best = self.isam.calculateBestEstimate()
-            start = gtsam.Values()
-            for key in self.initial.keys():  # pruned (rejected) landmarks stay out
-                _copy(best, start, key)
-            self.initial = start
-        return super().final(indices, marginals=marginals)
-
-
-def _copy(source: gtsam.Values, target: gtsam.Values, key: int) -> None:
-    kind = gtsam.Symbol(key).chr()
-    if kind == ord("x"):
-        target.insert(key, source.atPose3(key))
-    elif kind == _LANDMARK:
-        target.insert(key, source.atPoint3(key))
-    else:
-        target.insert(key, source.atVector(key))
-
-
 class TightSmoother(Estimator):
     """Pixels of plane points fused with the motion model in one GTSAM graph.
 
     Args:
-        solver: "isam2" (default; ``--method tight``): ISAM2 over a sliding window
-            online, batch Levenberg-Marquardt for :meth:`trajectory`; "batch"
+        solver: "isam2" (default; ``--method tight``): ISAM2 over a rebuilt window
+            online (:class:`~hvo_graph.estimators.tight_solvers.WindowIsam2Backend`),
+            batch Levenberg-Marquardt from its estimate for :meth:`trajectory`; "batch"
             (``tight-batch``); "fixed-lag" (``tight-fixed-lag``, ``lag`` seconds).
         lag: window of the fixed-lag solver, seconds (> 0).
         acceleration_sigma: (s_w, s_v) of the white-noise-acceleration model, one
@@ -260,9 +166,7 @@ class TightSmoother(Estimator):
     ) -> None:
         super().__init__()
         if solver not in TIGHT_SOLVERS:
-            raise InputError(
-                f"solver: expected one of {', '.join(TIGHT_SOLVERS)}, got {solver!r}"
-            )
+            raise InputError(f"solver: expected one of {', '.join(TIGHT_SOLVERS)}, got {solver!r}")
         self.solver = solver
         self.name = TIGHT_SOLVERS[solver]
         self.lag = as_number(lag, "lag", above=0.0)
@@ -286,12 +190,14 @@ class TightSmoother(Estimator):
                 max_iterations=max_iterations, compute_covariance=self.compute_covariance
             )
         elif solver == "fixed-lag":
-            self.backend = _LandmarkFixedLag(
-                _isam2_params(threshold, skip), self.lag, compute_covariance=self.compute_covariance
+            self.backend = LandmarkFixedLagBackend(
+                tight_isam2_params(threshold, skip),
+                self.lag,
+                compute_covariance=self.compute_covariance,
             )
         else:
-            self.backend = _WholeIsam2(
-                _isam2_params(threshold, skip),
+            self.backend = WindowIsam2Backend(
+                tight_isam2_params(threshold, skip),
                 max_iterations=max_iterations,
                 compute_covariance=self.compute_covariance,
             )
@@ -394,7 +300,8 @@ class TightSmoother(Estimator):
         normal = np.asarray(points.normal, dtype=float)
         distance = float(points.distance)
         added = []
-        for track, m in zip(np.asarray(points.ids).tolist(), np.asarray(points.m, dtype=float)):
+        coordinates = np.asarray(points.m, dtype=float)
+        for track, m in zip(np.asarray(points.ids).tolist(), coordinates, strict=True):
             if track in self.rejected_tracks:
                 continue
             key = self._landmarks.get(track)
@@ -453,7 +360,9 @@ class TightSmoother(Estimator):
             return np.asarray(isam.calculateEstimatePoint3(key), dtype=float)
         return np.asarray(self.backend.initial.atPoint3(key), dtype=float)  # type: ignore[attr-defined]
 
-    def _gate(self, pose: gtsam.Pose3, added: list[tuple[int, int, np.ndarray]], sigma: float) -> None:
+    def _gate(
+        self, pose: gtsam.Pose3, added: list[tuple[int, int, np.ndarray]], sigma: float
+    ) -> None:
         """Count the observations whose whitened residual fails the chi^2 gate."""
         R = pose.rotation().matrix()
         p = np.asarray(pose.translation(), dtype=float)
@@ -479,15 +388,15 @@ class TightSmoother(Estimator):
         if self._pruned or not self._rejected_keys or not isinstance(self.backend, BatchBackend):
             return
         backend = self.backend
-        backend.final([], marginals=False)  # let the ISAM2 back end hand over its window
+        backend.final([], marginals=False)  # let an ISAM2 back end hand over its estimate
         kept = gtsam.NonlinearFactorGraph()
         for i in range(backend.graph.size()):
             factor = backend.graph.at(i)
             if factor is not None and not self._rejected_keys.intersection(factor.keys()):
                 kept.add(factor)
-        live = getattr(backend, "live", {})
+        live: set[int] = getattr(backend, "live", set())
         for key in self._rejected_keys:
-            live.pop(key, None)  # not handed over again by the ISAM2 back end
+            live.discard(key)  # not handed over again by the ISAM2 back end
             if backend.initial.exists(key):
                 backend.initial.erase(key)
         backend.graph = kept

@@ -36,7 +36,7 @@ from hvo_graph.estimators.process_noise import acceleration_sigma as check_accel
 from hvo_graph.estimators.tight import DEFAULT_PLANE_SIGMA, IN_PLANE_SIGMA
 from hvo_graph.sim.scenario import Scenario
 
-__all__ = ["PoseBound", "memoryless_bound", "posterior_bound"]
+__all__ = ["MIN_PIXEL_SIGMA", "PoseBound", "bound_ratio", "memoryless_bound", "posterior_bound"]
 
 #: Pixel sigma (px) used for a noise-free scenario (a zero sigma has no finite bound).
 MIN_PIXEL_SIGMA = 1e-3
@@ -111,7 +111,9 @@ def _frame_factors(
             m = c[:2] / c[2]  # noise-free: the linearization point is the truth
             graph.add(gtsam.GenericProjectionFactorCal3_S2(m, noise, X(k), L(track), _UNIT))
     first = frames[0]
-    graph.add(gtsam.PriorFactorPose3(X(first), gtsam.Pose3(), gtsam.noiseModel.Isotropic.Sigma(6, 1e-6)))
+    graph.add(
+        gtsam.PriorFactorPose3(X(first), gtsam.Pose3(), gtsam.noiseModel.Isotropic.Sigma(6, 1e-6))
+    )
 
 
 def _bound(scenario: Scenario, covariances: list[np.ndarray]) -> PoseBound:
@@ -123,9 +125,7 @@ def _bound(scenario: Scenario, covariances: list[np.ndarray]) -> PoseBound:
     )
 
 
-def posterior_bound(
-    scenario: Scenario, acceleration_sigma: float | Sequence[float]
-) -> PoseBound:
+def posterior_bound(scenario: Scenario, acceleration_sigma: float | Sequence[float]) -> PoseBound:
     """The posterior Cramér-Rao bound of the pose at every frame (module docstring).
 
     Args:
