@@ -54,10 +54,10 @@ def test_back_project_returns_the_plane_point_seen():
     truth = scenario.groundtruth
     k = 20
     pose = gtsam.Pose3(gtsam.Rot3(truth.rotations[k]), truth.positions[k])
-    for X in scenario.points_world:
-        c = truth.rotations[k].T @ (X - truth.positions[k])
+    for point in scenario.points_world:
+        c = truth.rotations[k].T @ (point - truth.positions[k])
         found = back_project(pose, c[:2] / c[2], scenario.plane.normal, scenario.plane.distance)
-        np.testing.assert_allclose(found, X, atol=1e-12)
+        np.testing.assert_allclose(found, point, atol=1e-12)
     # A ray pointing away from the plane meets it behind the camera: none.
     away = gtsam.Pose3(gtsam.Rot3.Rx(np.pi), np.zeros(3))
     assert back_project(away, np.zeros(2), scenario.plane.normal, 2.0) is None
