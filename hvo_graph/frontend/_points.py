@@ -9,7 +9,7 @@ import numpy as np
 
 from hvo_graph.errors import InputError
 from hvo_graph.geometry.camera import CameraModel
-from hvo_graph.types import FrameObservations
+from hvo_graph.types import FrameObservations, Plane, PointObservations
 
 
 @dataclass(frozen=True)
@@ -40,3 +40,26 @@ def common_points(
     """The rows of ``a.m`` and ``m`` of the ids both have (and those ids, if asked)."""
     shared, ia, ib = np.intersect1d(a.ids, ids, assume_unique=True, return_indices=True)
     return (a.m[ia], m[ib], shared) if with_ids else (a.m[ia], m[ib])
+
+
+def kept_points(
+    ids: np.ndarray,
+    m: np.ndarray,
+    rejected: list[int],
+    sigma: float,
+    normal: np.ndarray | None,
+    plane: Plane,
+) -> PointObservations | None:
+    """The frame's points less those its gate ``rejected``: ids (N,), m (N, 2) = (x/z, y/z)
+    from the homogeneous (N, 3), their sigma (normalized units), n* and d*; None while
+    n* is unknown (for estimators that fuse pixels)."""
+    if normal is None:
+        return None
+    keep = ~np.isin(ids, rejected) if rejected else np.ones(len(ids), dtype=bool)
+    return PointObservations(
+        ids=ids[keep],
+        m=m[keep, :2] / m[keep, 2:3],
+        sigma=sigma,
+        normal=normal,
+        distance=plane.distance,
+    )

@@ -32,7 +32,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from hvo_graph.errors import InputError, as_integer, as_number
-from hvo_graph.frontend._points import TrackedFrame, common_points, normalized_by_id
+from hvo_graph.frontend._points import TrackedFrame, common_points, kept_points, normalized_by_id
 from hvo_graph.frontend.velocity import flow_twist, mid_interval_plane
 from hvo_graph.geometry.camera import CameraModel
 from hvo_graph.geometry.continuous import motion_after_twist
@@ -59,7 +59,6 @@ from hvo_graph.types import (
     FrameMeasurement,
     FrameObservations,
     Plane,
-    PointObservations,
     PoseMeasurement,
     VelocityMeasurement,
 )
@@ -201,8 +200,7 @@ class MeasurementFrontEnd:
         #: frames in which each track id was rejected; ids at ``reject_after`` are excluded.
         self._rejections: dict[int, int] = {}
         self._excluded: set[int] = set()
-        self._rejected_now = 0
-        self._rejected_ids: list[int] = []
+        self._rejected_ids: list[int] = []  # the current frame's gate rejections
         self._last_twist = np.zeros(6)  # the latest measured [w; v] (predicts lost frames)
 
     @property
@@ -220,7 +218,6 @@ class MeasurementFrontEnd:
         if self._excluded:
             keep = ~np.isin(ids, list(self._excluded))
             ids, m = ids[keep], m[keep]
-        self._rejected_now = 0
         self._rejected_ids = []
         if self._reference is None:
             self._reference = TrackedFrame(obs.index, obs.t, ids, m, np.eye(3), np.zeros(3))
@@ -242,22 +239,9 @@ class MeasurementFrontEnd:
             # the plane at their own estimate of it (keyframe plane Jacobian).
             self._move_reference(frame)
         self._previous = frame
-        rejected = self._rejected_now + len(obs.ids) - len(ids)
-        points = self._points(ids, m)
+        rejected = len(self._rejected_ids) + len(obs.ids) - len(ids)
+        points = kept_points(ids, m, self._rejected_ids, self._sigma, self._normal, self.plane)
         return FrameMeasurement(obs.index, obs.t, pose, velocity, len(obs.ids), rejected, points)
-
-    def _points(self, ids: np.ndarray, m: np.ndarray) -> PointObservations | None:
-        """The frame's kept points (gate rejections left out) for pixel-level estimators."""
-        if self._normal is None:
-            return None
-        keep = ~np.isin(ids, self._rejected_ids) if self._rejected_ids else slice(None)
-        return PointObservations(
-            ids=ids[keep],
-            m=m[keep, :2] / m[keep, 2:3],
-            sigma=self._sigma,
-            normal=self._normal,
-            distance=self.plane.distance,
-        )
 
     @property
     def excluded_tracks(self) -> frozenset[int]:
@@ -266,7 +250,6 @@ class MeasurementFrontEnd:
 
     def _reject(self, ids: np.ndarray) -> None:
         """Count one rejection for each id; exclude the ids that reached ``reject_after``."""
-        self._rejected_now += len(ids)
         self._rejected_ids.extend(ids.tolist())
         limit = self.config.reject_after
         for i in ids.tolist():
