@@ -101,9 +101,17 @@ COMPONENTS: dict[str, str] = {
     "fixed-lag": "smoother: fixed-lag (1 s)",
     "batch": "smoother: batch LM",
     "isam2-cov": "smoother: ISAM2 + covariance",
+    "tight": "tight (pixels on plane landmarks): ISAM2",
 }
 #: What runs without ``--components`` ("isam2-cov" adds a marginal covariance per frame).
-DEFAULT_COMPONENTS: tuple[str, ...] = ("frontend", "kalman", "isam2", "fixed-lag", "batch")
+DEFAULT_COMPONENTS: tuple[str, ...] = (
+    "frontend",
+    "kalman",
+    "isam2",
+    "fixed-lag",
+    "batch",
+    "tight",
+)
 DEFAULT_SIZES: tuple[int, ...] = (1000, 10000, 100000)
 QUICK_SIZES: tuple[int, ...] = (300, 1000)
 #: Frames averaged at the start and at the end of a run for the growth of the cost.
@@ -161,6 +169,8 @@ def make_component(name: str) -> Estimator:
         return make_estimator("fixed-lag", lag=1.0)
     if name == "batch":
         return make_estimator("batch")
+    if name == "tight":
+        return make_estimator("tight")
     raise InputError(f"component: expected one of {', '.join(COMPONENTS)}, got {name!r}")
 
 
@@ -211,9 +221,12 @@ class Timing:
         return self.last_ms / self.first_ms
 
 
-def simulate_frames(frames: int, seed: int = 0) -> Scenario:
+def simulate_frames(frames: int, seed: int = 0, num_points: int = 4) -> Scenario:
     """The paper's noisy scenario with exactly ``frames`` frames at 30 fps."""
-    scenario = simulate(paper_scenario(noisy=True, seed=seed, duration=(frames - 1) / FPS))
+    duration = (frames - 1) / FPS
+    scenario = simulate(
+        paper_scenario(noisy=True, seed=seed, duration=duration, num_points=num_points)
+    )
     if len(scenario.observations) != frames:  # floor() of the frame count must not slip
         raise RuntimeError(f"simulated {len(scenario.observations)} frames, wanted {frames}")
     return scenario
@@ -725,7 +738,7 @@ def run_sizes(
     with tempfile.TemporaryDirectory(prefix="hvo_benchmark_") as tmp:
         for n in sizes:
             _progress(f"{n:,} frames: simulating")
-            scenario = simulate_frames(n, seed=args.seed)
+            scenario = simulate_frames(n, seed=args.seed, num_points=args.num_points)
             results: list[Timing] = []
             # The front end always runs once (its measurements feed the estimators).
             frames, timing = run_frontend(scenario)
@@ -873,6 +886,7 @@ def build_parser() -> argparse.ArgumentParser:
     )
     parser.add_argument("--repeat", type=int, default=1, help="keep the fastest of N timed runs")
     parser.add_argument("--seed", type=int, default=0, help="pixel-noise seed")
+    parser.add_argument("--num-points", type=int, default=4, help="plane points (default 4)")
     parser.add_argument("--out", type=Path, default=Path("docs/performance.md"))
     parser.add_argument(
         "--memory-worker", nargs=2, metavar=("COMPONENT", "INPUTS"), help=argparse.SUPPRESS
@@ -924,7 +938,9 @@ def main(argv: Sequence[str] | None = None) -> int:
     if profile_frames:
         if profile_input is None:
             _progress(f"profile: measuring {profile_frames:,} frames")
-            profile_input = run_frontend(simulate_frames(profile_frames, seed=args.seed))[0]
+            profile_input = run_frontend(
+                simulate_frames(profile_frames, seed=args.seed, num_points=args.num_points)
+            )[0]
         _progress(f"profile: {args.profile_component} on {profile_frames:,} frames")
         profile = profile_component(profile_input, args.profile_component)
 

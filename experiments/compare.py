@@ -74,6 +74,7 @@ RATIOS: tuple[tuple[str, str], ...] = (
     ("smoother", "ippe"),
     ("smoother", "kalman-measured"),
     ("smoother-online", "kalman"),
+    ("tight", "smoother"),
 )
 
 ERROR_FIGSIZE = (11.0, 7.5)  # inches; PNG 1650 x 1125 px at 150 dpi
@@ -92,6 +93,11 @@ METHOD_NOTES: dict[str, str] = {
     "(causal)",
     "batch": "the same factor graph, Levenberg-Marquardt over the whole sequence",
     "fixed-lag": "the same factor graph, GTSAM incremental fixed-lag smoother (1 s window)",
+    "tight": "tightly coupled GTSAM graph: one projection factor per pixel on plane landmarks, "
+    "the smoother's motion model, ISAM2 online then the batch optimum (final trajectory)",
+    "tight-online": "the same tight ISAM2 run, each frame's estimate right after its own update",
+    "tight-batch": "the same tight graph, Levenberg-Marquardt over the whole sequence",
+    "tight-fixed-lag": "the same tight graph, GTSAM incremental fixed-lag smoother (1 s window)",
     "ippe": "per-frame OpenCV solvePnP (SOLVEPNP_IPPE) on the plane points, twist from "
     "differencing consecutive poses",
 }

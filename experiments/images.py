@@ -16,7 +16,8 @@ reference to keyframes. Pipeline per seed (hvo_graph.image_runs.run_image_seed):
    pixel_sigma :data:`PIXEL_SIGMA`, keyframes when the reference points leave);
 5. estimators (:data:`METHODS`): the raw measurements, the paper's Kalman
    filter (paper noisy R_k), the Kalman filter with the front end's R_k, the
-   ISAM2 smoother (smoothed and online) and the fixed-lag smoother;
+   ISAM2 smoother (smoothed and online), the fixed-lag smoother and the tightly
+   coupled smoother (pixels on plane landmarks);
 6. errors against the rendering's ground truth (hvo_graph.eval.metrics) after
    the first ``--skip`` seconds, and over the time before and after the first
    keyframe switch.
@@ -101,6 +102,7 @@ METHODS: tuple[str, ...] = (
     "smoother",
     "smoother-online",
     "fixed-lag",
+    "tight",
 )
 
 TRAJECTORY_FIGSIZE = (11.0, 7.5)  # inches; PNG 1650 x 1125 px at 150 dpi

@@ -174,6 +174,10 @@ class EstimateRun:
         }
         if hasattr(est, "velocity_factor_counts"):
             counts["velocity_factors"] = dict(est.velocity_factor_counts)
+        if hasattr(est, "rejected_tracks"):  # the tightly coupled smoother's own gate
+            counts["landmarks"] = est.counts["landmarks"]
+            counts["pixel_observations"] = est.counts["observations"]
+            counts["off_plane_tracks"] = sorted(est.rejected_tracks)
         return {
             "method": self.method,
             "options": settings,

@@ -123,6 +123,29 @@ class VelocityMeasurement:
 
 
 @dataclass(frozen=True)
+class PointObservations:
+    """The plane points of one frame as the front end kept them, for estimators that
+    fuse the pixels themselves (the tightly coupled smoother).
+
+    Attributes:
+        ids: (N,) int track ids (tracks excluded as off the plane, and points the
+            frame's gate rejected, are left out).
+        m: (N, 2) normalized image coordinates (x/z, y/z), undistorted through the
+            camera model.
+        sigma: standard deviation of each coordinate of ``m`` (pixel sigma over the
+            mean focal length, normalized units).
+        normal: (3,) the plane normal n* in W the front end uses (known or estimated).
+        distance: d*, metres.
+    """
+
+    ids: np.ndarray
+    m: np.ndarray
+    sigma: float
+    normal: np.ndarray
+    distance: float
+
+
+@dataclass(frozen=True)
 class FrameMeasurement:
     """Everything the front end measured at frame ``index``.
 
@@ -134,6 +157,8 @@ class FrameMeasurement:
         num_points: points observed in the frame.
         num_rejected: of those, points the front end rejected as outliers (RANSAC,
             the residual gate, or tracks already excluded as off the plane).
+        points: the frame's kept plane points in normalized coordinates (None before
+            the plane normal is known, or when not made by the front end).
 
     ``pose`` or ``velocity`` is None when the frame had too few usable points;
     estimators then predict through the frame.
@@ -145,6 +170,7 @@ class FrameMeasurement:
     velocity: VelocityMeasurement | None = None
     num_points: int = 0
     num_rejected: int = 0
+    points: PointObservations | None = field(default=None, repr=False)
 
 
 @dataclass

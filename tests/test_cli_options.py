@@ -45,7 +45,7 @@ def estimate_args(sim_dir, out, *extra):
     [
         (
             ["--method", "smoother", "--lag", "2"],
-            "--lag: does not apply to method 'smoother' (it applies to fixed-lag)",
+            "--lag: does not apply to method 'smoother' (it applies to fixed-lag, tight-fixed-lag)",
         ),
         (
             ["--method", "kalman", "--robust", "huber"],
@@ -55,7 +55,7 @@ def estimate_args(sim_dir, out, *extra):
         (
             ["--method", "measurements", "--online"],
             "--online: does not apply to method 'measurements' "
-            "(it applies to smoother, batch, fixed-lag)",
+            "(it applies to smoother, batch, fixed-lag, tight, tight-batch, tight-fixed-lag)",
         ),
         (
             ["--method", "measurements", "--covariance"],
@@ -64,7 +64,7 @@ def estimate_args(sim_dir, out, *extra):
         (
             ["--method", "batch", "--relinearize-skip", "3"],
             "--relinearize-skip: does not apply to method 'batch' "
-            "(it applies to smoother, fixed-lag)",
+            "(it applies to smoother, fixed-lag, tight, tight-fixed-lag)",
         ),
         (
             ["--method", "kalman", "--independent-poses"],
@@ -150,7 +150,10 @@ def test_pipeline_takes_every_knob(scenario):
 
 
 def test_the_solver_names_agree_with_the_method_table():
-    from hvo_graph.estimators.choices import SOLVERS
+    from hvo_graph.estimators.choices import SOLVERS, TIGHT_SOLVERS
     from hvo_graph.estimators.registry import METHODS
 
-    assert {m.solver: m.name for m in METHODS if m.solver} == dict(SOLVERS)
+    graphs = [m for m in METHODS if m.solver]
+    homography = {m.solver: m.name for m in graphs if not m.name.startswith("tight")}
+    assert homography == dict(SOLVERS)
+    assert {m.solver: m.name for m in graphs if m.name.startswith("tight")} == dict(TIGHT_SOLVERS)

@@ -137,6 +137,7 @@ def test_benchmark_quick_writes_the_table_machine_and_profile(tmp_path, capsys):
         "smoother: ISAM2",
         "smoother: fixed-lag (1 s)",
         "smoother: batch LM",
+        "tight (pixels on plane landmarks): ISAM2",
     ]
     assert [(r[0], r[1]) for r in rows] == [(t, n) for n in ("300", "1,000") for t in titles]
     for r in rows:

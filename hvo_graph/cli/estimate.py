@@ -131,7 +131,8 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
         type=finite_float(0.0, strict=True),
         default=S,
         metavar="X",
-        help="robust loss threshold on the whitened residual (default 3.55)",
+        help="robust loss threshold on the whitened residual (default 3.55; tight methods: "
+        "Huber on the pixel residual, default 2.45)",
     )
     model.add_argument(
         "--velocity-factors",

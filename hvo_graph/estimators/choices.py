@@ -28,3 +28,8 @@ VELOCITY_FACTOR_POLICIES: tuple[str, ...] = ("gaps", "all")
 SOLVERS: Mapping[str, str] = MappingProxyType(
     {"isam2": "smoother", "batch": "batch", "fixed-lag": "fixed-lag"}
 )
+
+#: The tightly coupled smoother's back ends and their ``--method`` names.
+TIGHT_SOLVERS: Mapping[str, str] = MappingProxyType(
+    {"isam2": "tight", "batch": "tight-batch", "fixed-lag": "tight-fixed-lag"}
+)

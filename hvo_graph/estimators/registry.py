@@ -3,7 +3,8 @@
 Every method the command line, the pipeline, the Monte Carlo runner, the
 experiments and the figures know is one :class:`Method` record of
 :data:`METHODS` (in table order): its name, its title in tables and legends,
-the front end's pose solver it reads, whether ``hvo-graph estimate --method``
+the front end's pose solver it reads (the tightly coupled methods read its
+pixels, and its H_d / H_c as initial values), whether ``hvo-graph estimate --method``
 offers it, which :class:`EstimatorOptions` apply, its plot style and its
 factory. The Kalman R_k presets and the smoother's robust losses are defined
 here too, once.
@@ -82,8 +83,9 @@ class Method:
         style: ``Axes.plot`` keyword arguments (color, linestyle, marker).
         build: its factory, None for "smoother-online", read from the run of
             ``online_of``.
-        solver: the :class:`~hvo_graph.estimators.smoother.FactorGraphSmoother`
-            back end of the graph methods.
+        solver: the back end of the graph methods
+            (:class:`~hvo_graph.estimators.smoother.FactorGraphSmoother`,
+            :class:`~hvo_graph.estimators.tight.TightSmoother`).
         online_of: the method whose online (causal) estimates this one is.
     """
 
@@ -159,6 +161,24 @@ def _graph(method: Method, options: EstimatorOptions) -> Estimator:
     )
 
 
+def _tight(method: Method, options: EstimatorOptions) -> Estimator:
+    from hvo_graph.estimators.tight import TightSmoother
+
+    isam2 = {
+        name: value
+        for name in ("relinearize_threshold", "relinearize_skip")
+        if (value := getattr(options, name)) is not None
+    }
+    return TightSmoother(
+        solver=str(method.solver),
+        lag=options.lag,
+        acceleration_sigma=options.acceleration_sigma,
+        robust_threshold=options.robust_threshold,
+        compute_covariance=options.covariance,
+        **isam2,  # type: ignore[arg-type]
+    )
+
+
 _KALMAN = ("seed", "kalman_r", "kalman_world_velocity", "covariance", "acceleration_sigma")
 _GRAPH = (
     "robust",
@@ -170,6 +190,7 @@ _GRAPH = (
     "online",
 )
 _ISAM2 = ("relinearize_threshold", "relinearize_skip")
+_TIGHT = ("robust_threshold", "covariance", "acceleration_sigma", "online")
 
 #: Every method, in table order.
 METHODS: tuple[Method, ...] = (
@@ -247,6 +268,45 @@ METHODS: tuple[Method, ...] = (
         (),
         {"color": "#000000", "linestyle": "-", "marker": "*"},
         _raw,
+    ),
+    Method(
+        "tight",
+        "tight ISAM2 smoothed",
+        "homography",
+        6,
+        (*_TIGHT, *_ISAM2),
+        {"color": "#882255", "linestyle": "-", "marker": "h"},
+        _tight,
+        solver="isam2",
+    ),
+    Method(
+        "tight-online",
+        "tight ISAM2 online",
+        "homography",
+        None,
+        (*_TIGHT, *_ISAM2),
+        {"color": "#AA4499", "linestyle": "-", "marker": "<"},
+        online_of="tight",
+    ),
+    Method(
+        "tight-batch",
+        "tight batch LM",
+        "homography",
+        7,
+        _TIGHT,
+        {"color": "#332288", "linestyle": "--", "marker": ">"},
+        _tight,
+        solver="batch",
+    ),
+    Method(
+        "tight-fixed-lag",
+        "tight fixed-lag (1 s)",
+        "homography",
+        8,
+        ("lag", *_TIGHT, *_ISAM2),
+        {"color": "#44AA99", "linestyle": ":", "marker": "d"},
+        _tight,
+        solver="fixed-lag",
     ),
 )
 

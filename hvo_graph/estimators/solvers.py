@@ -448,9 +448,14 @@ class Isam2Backend(BatchBackend):
 
 
 def _copy_value(source: gtsam.Values, target: gtsam.Values, key: int) -> None:
-    """Set ``target``'s value of ``key`` (an X pose or a V twist) to ``source``'s."""
-    is_pose = gtsam.Symbol(key).chr() == ord("x")
-    value = source.atPose3(key) if is_pose else source.atVector(key)
+    """Set ``target``'s value of ``key`` (an X pose, a V twist or an L landmark) to ``source``'s."""
+    kind = gtsam.Symbol(key).chr()
+    if kind == ord("x"):
+        value = source.atPose3(key)
+    elif kind == ord("l"):  # the tightly coupled smoother's plane landmarks (Point3)
+        value = source.atPoint3(key)
+    else:
+        value = source.atVector(key)
     if target.exists(key):
         target.update(key, value)
     else:

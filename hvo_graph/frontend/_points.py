@@ -9,7 +9,7 @@ import numpy as np
 
 from hvo_graph.errors import InputError
 from hvo_graph.geometry.camera import CameraModel
-from hvo_graph.types import FrameObservations
+from hvo_graph.types import FrameObservations, Plane, PointObservations
 
 
 @dataclass(frozen=True)
@@ -89,3 +89,26 @@ class CollinearMemo:
         result = any_collinear(self.tolerance, m)
         self._kept = [(m, result), *self._kept[:2]]
         return result
+
+
+def kept_points(
+    ids: np.ndarray,
+    m: np.ndarray,
+    rejected: list[int],
+    sigma: float,
+    normal: np.ndarray | None,
+    plane: Plane,
+) -> PointObservations | None:
+    """The frame's points less those its gate ``rejected``: ids (N,), m (N, 2) = (x/z, y/z)
+    from the homogeneous (N, 3), their sigma (normalized units), n* and d*; None while
+    n* is unknown (for estimators that fuse pixels)."""
+    if normal is None:
+        return None
+    keep = ~np.isin(ids, rejected) if rejected else np.ones(len(ids), dtype=bool)
+    return PointObservations(
+        ids=ids[keep],
+        m=m[keep, :2] / m[keep, 2:3],
+        sigma=sigma,
+        normal=normal,
+        distance=plane.distance,
+    )

@@ -36,6 +36,7 @@ from hvo_graph.frontend._points import (
     CollinearMemo,
     TrackedFrame,
     common_points,
+    kept_points,
     normalized_by_id,
     shared_count,
 )
@@ -196,7 +197,7 @@ class MeasurementFrontEnd:
         #: frames in which each track id was rejected; ids at ``reject_after`` are excluded.
         self._rejections: dict[int, int] = {}
         self._excluded: set[int] = set()
-        self._rejected_now = 0
+        self._rejected_ids: list[int] = []  # the current frame's gate rejections
         self._last_twist = np.zeros(6)  # the latest measured [w; v] (predicts lost frames)
         # (reference frame, n*, its plane) of the reference in use, and that plane's basis.
         self._reference_plane: tuple | None = None
@@ -218,7 +219,7 @@ class MeasurementFrontEnd:
         if self._excluded:
             keep = ~np.isin(ids, list(self._excluded))
             ids, m = ids[keep], m[keep]
-        self._rejected_now = 0
+        self._rejected_ids = []
         if self._reference is None:
             self._reference = TrackedFrame(obs.index, obs.t, ids, m, np.eye(3), np.zeros(3))
             self._world_index = obs.index
@@ -244,8 +245,9 @@ class MeasurementFrontEnd:
             # the plane at their own estimate of it (keyframe plane Jacobian).
             self._move_reference(frame)
         self._previous = frame
-        rejected = self._rejected_now + len(obs.ids) - len(ids)
-        return FrameMeasurement(obs.index, obs.t, pose, velocity, len(obs.ids), rejected)
+        rejected = len(self._rejected_ids) + len(obs.ids) - len(ids)
+        points = kept_points(ids, m, self._rejected_ids, self._sigma, self._normal, self.plane)
+        return FrameMeasurement(obs.index, obs.t, pose, velocity, len(obs.ids), rejected, points)
 
     @property
     def excluded_tracks(self) -> frozenset[int]:
@@ -254,7 +256,7 @@ class MeasurementFrontEnd:
 
     def _reject(self, ids: np.ndarray) -> None:
         """Count one rejection for each id; exclude the ids that reached ``reject_after``."""
-        self._rejected_now += len(ids)
+        self._rejected_ids.extend(ids.tolist())
         limit = self.config.reject_after
         for i in ids.tolist():
             self._rejections[i] = self._rejections.get(i, 0) + 1

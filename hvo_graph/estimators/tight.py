@@ -1,0 +1,428 @@
+"""The tightly coupled plane-landmark smoother (``--method tight``): the pixels themselves
+in the factor graph, with the plane (n*, d*) as a constraint on the landmarks.
+
+The homography graph (:mod:`hvo_graph.estimators.smoother`) fuses per-frame H_d
+poses, each computed from the reference frame's pixels and the current ones; the
+reference's noise is shared by every pose and a memoryless pose is only as good as
+one frame pair allows. Here every pixel observation is its own factor, so the motion
+model pools the information of every frame on the landmarks and on the poses.
+
+Variables (keys from ``gtsam.symbol_shorthand``): X(k), the pose T_wc
+(``gtsam.Pose3``, W = F*, the first camera frame); V(k), the body twist [w; v]
+(6-vector, contract sign); L(j), one ``Point3`` in W per track (a new key when a
+track comes back after its landmark left the online problem). Factors:
+
+- world: X(k0) = I (standard deviation :data:`DEFAULT_WORLD_SIGMA`); together with
+  the plane it fixes the gauge (W is the first camera frame by definition, so this
+  prior is exact: the first frame's pixel noise enters through the landmarks);
+- plane: n*^T L(j) = d*, a ``PriorFactorPoint3`` whose square-root information
+  has one stiff row along n* (standard deviation ``plane_sigma``) and two loose
+  in-plane rows (:data:`IN_PLANE_SIGMA`): a linear constraint, built in C++;
+- projection: one ``GenericProjectionFactorCal3_S2`` per observation with the unit
+  calibration on the undistorted normalized coordinates m = (x/z, y/z) of the
+  front end (:class:`~hvo_graph.types.PointObservations`), so every camera model
+  (radial-tangential, fisheye) goes through :class:`~hvo_graph.geometry.camera.CameraModel`;
+  isotropic noise of the frame's ``sigma`` (pixel sigma over the mean focal length)
+  under a Huber loss (threshold ``robust_threshold`` on the whitened residual);
+- motion and twist random walk: the same factors and process noise as the homography
+  graph (:func:`~hvo_graph.estimators.factors.motion_factor`, Q fitted by maximum
+  likelihood on the front end's H_d poses unless ``acceleration_sigma`` is given);
+- no H_d or H_c factors: they are made of the same pixels. They give the initial
+  values: X(k) from H_d (the motion-model prediction without one), V(k) from H_c,
+  and a new landmark from its first ray cut with the plane at that initial pose.
+
+Off-plane tracks: a point off the plane is consistent with a plane landmark only
+while the camera has not moved (no parallax). After each update the whitened
+residual of every new observation is checked against ``reject_chi2`` (chi^2, 2
+dof); a track failing in ``reject_after`` consecutive observations is rejected: no
+more of its observations enter, and the final solve drops all of its factors.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Iterable, Sequence
+
+import gtsam
+import numpy as np
+from gtsam.symbol_shorthand import L, V, X
+
+from hvo_graph.errors import InputError, as_integer, as_number
+from hvo_graph.estimators.base import Estimator
+from hvo_graph.estimators.choices import TIGHT_SOLVERS
+from hvo_graph.estimators.factors import motion_factor
+from hvo_graph.estimators.noise_estimation import ProcessNoiseSchedule
+from hvo_graph.estimators.process_noise import DEFAULT_ACCELERATION_SIGMA, MotionNoise
+from hvo_graph.estimators.process_noise import acceleration_sigma as check_acceleration_sigma
+from hvo_graph.estimators.solvers import Backend, BatchBackend
+from hvo_graph.estimators.tight_solvers import (
+    LandmarkFixedLagBackend,
+    WindowIsam2Backend,
+    tight_isam2_params,
+)
+from hvo_graph.types import FrameMeasurement, PointObservations, StateEstimate, Trajectory
+
+__all__ = [
+    "DEFAULT_PIXEL_THRESHOLD",
+    "DEFAULT_PLANE_SIGMA",
+    "DEFAULT_REJECT_AFTER",
+    "DEFAULT_REJECT_CHI2",
+    "TightSmoother",
+    "back_project",
+]
+
+#: Huber threshold on the whitened 2-D pixel residual: sqrt of chi^2_2(0.95), so an
+#: inlier observation is down-weighted 5 % of the time.
+DEFAULT_PIXEL_THRESHOLD: float = math.sqrt(5.991464547107979)
+
+#: Standard deviation (m) of n*^T L - d*: the landmarks lie on the plane.
+DEFAULT_PLANE_SIGMA: float = 1e-6
+
+#: Standard deviation (m) of the in-plane rows of the plane factor (no information).
+IN_PLANE_SIGMA: float = 1e2
+
+#: chi^2 (2 dof) of an observation's whitened residual beyond which it counts against
+#: its track: the 99.9 % quantile.
+DEFAULT_REJECT_CHI2: float = 13.815510557964274
+
+#: A track failing the gate in this many consecutive observations is rejected.
+DEFAULT_REJECT_AFTER: int = 3
+
+#: Standard deviation (rad, m) of X(k0) = I.
+DEFAULT_WORLD_SIGMA: float = 1e-6
+
+#: Standard deviation (rad/s, m/s) of the zero-mean prior on the first twist.
+DEFAULT_INITIAL_TWIST_SIGMA: float = 10.0
+
+_ZERO6 = np.zeros(6)
+_UNIT_CALIBRATION = gtsam.Cal3_S2(1.0, 1.0, 0.0, 0.0, 0.0)
+
+
+def back_project(
+    pose: gtsam.Pose3, m: np.ndarray, normal: np.ndarray, distance: float
+) -> np.ndarray | None:
+    """The point of the plane n^T X = d (in W) seen at normalized coordinates m from T_wc.
+
+    Args:
+        pose: T_wc.
+        m: (2,) normalized image coordinates (x/z, y/z).
+        normal, distance: n* (3,) and d* of the plane in W.
+    Returns:
+        (3,) the point in W, or None when the ray does not meet the plane in front.
+    """
+    R = pose.rotation().matrix()
+    p = np.asarray(pose.translation(), dtype=float)
+    ray = R @ np.array([m[0], m[1], 1.0])
+    along = float(normal @ ray)
+    if abs(along) < 1e-9:
+        return None
+    s = (distance - float(normal @ p)) / along
+    return p + s * ray if s > 0 else None
+
+
+class TightSmoother(Estimator):
+    """Pixels of plane points fused with the motion model in one GTSAM graph.
+
+    Args:
+        solver: "isam2" (default; ``--method tight``): ISAM2 over a rebuilt window
+            online (:class:`~hvo_graph.estimators.tight_solvers.WindowIsam2Backend`),
+            batch Levenberg-Marquardt from its estimate for :meth:`trajectory`; "batch"
+            (``tight-batch``); "fixed-lag" (``tight-fixed-lag``, ``lag`` seconds).
+        lag: window of the fixed-lag solver, seconds (> 0).
+        acceleration_sigma: (s_w, s_v) of the white-noise-acceleration model, one
+            number for both, or "auto" (default): fitted by maximum likelihood on
+            the front end's H_d poses (as the homography smoother does).
+        robust_threshold: Huber threshold on the whitened pixel residual norm
+            (default :data:`DEFAULT_PIXEL_THRESHOLD`).
+        compute_covariance: also return the 12x12 covariance of [pose tangent; twist]
+            per frame: online, the ISAM2 marginal after the frame's update; smoothed,
+            the marginal of the whole graph at its optimum.
+        plane_sigma: standard deviation (m) of the plane constraint n*^T L = d*.
+        reject_chi2, reject_after: the off-plane track gate (module docstring).
+        relinearize_threshold, relinearize_skip: ISAM2's relinearization settings.
+        max_iterations: most Levenberg-Marquardt iterations of the final solve.
+
+    Frames must carry ``points`` (:class:`~hvo_graph.types.PointObservations`, made
+    by :class:`~hvo_graph.frontend.MeasurementFrontEnd`); a frame without them (the
+    plane normal not yet known) is predicted by the motion model.
+    """
+
+    name = "tight"
+
+    def __init__(
+        self,
+        *,
+        solver: str = "isam2",
+        lag: float = 1.0,
+        acceleration_sigma: float | Sequence[float] | str = "auto",
+        robust_threshold: float | None = None,
+        compute_covariance: bool = False,
+        plane_sigma: float = DEFAULT_PLANE_SIGMA,
+        reject_chi2: float = DEFAULT_REJECT_CHI2,
+        reject_after: int = DEFAULT_REJECT_AFTER,
+        relinearize_threshold: float = 0.05,
+        relinearize_skip: int = 10,
+        max_iterations: int = 100,
+    ) -> None:
+        super().__init__()
+        if solver not in TIGHT_SOLVERS:
+            raise InputError(f"solver: expected one of {', '.join(TIGHT_SOLVERS)}, got {solver!r}")
+        self.solver = solver
+        self.name = TIGHT_SOLVERS[solver]
+        self.lag = as_number(lag, "lag", above=0.0)
+        self.process_noise = ProcessNoiseSchedule(acceleration_sigma, DEFAULT_ACCELERATION_SIGMA)
+        self._set_acceleration_sigma(self.process_noise.sigma)
+        self.robust_threshold = (
+            DEFAULT_PIXEL_THRESHOLD
+            if robust_threshold is None
+            else as_number(robust_threshold, "robust_threshold", above=0.0)
+        )
+        self.compute_covariance = bool(compute_covariance)
+        self.plane_sigma = as_number(plane_sigma, "plane_sigma", above=0.0)
+        self.reject_chi2 = as_number(reject_chi2, "reject_chi2", above=0.0)
+        self.reject_after = as_integer(reject_after, "reject_after", 1)
+        threshold = as_number(relinearize_threshold, "relinearize_threshold", above=0.0)
+        skip = as_integer(relinearize_skip, "relinearize_skip", 1)
+        max_iterations = as_integer(max_iterations, "max_iterations", 1)
+        self.backend: Backend
+        if solver == "batch":
+            self.backend = BatchBackend(
+                max_iterations=max_iterations, compute_covariance=self.compute_covariance
+            )
+        elif solver == "fixed-lag":
+            self.backend = LandmarkFixedLagBackend(
+                tight_isam2_params(threshold, skip),
+                self.lag,
+                compute_covariance=self.compute_covariance,
+            )
+        else:
+            self.backend = WindowIsam2Backend(
+                tight_isam2_params(threshold, skip),
+                max_iterations=max_iterations,
+                compute_covariance=self.compute_covariance,
+            )
+        self._world_noise = gtsam.noiseModel.Isotropic.Sigma(6, DEFAULT_WORLD_SIGMA)
+        self._twist_prior = gtsam.noiseModel.Isotropic.Sigma(6, DEFAULT_INITIAL_TWIST_SIGMA)
+        self._indices: list[int] = []
+        self._times: list[float] = []
+        self._pose = gtsam.Pose3()
+        self._twist = _ZERO6
+        #: track id -> its current landmark key.
+        self._landmarks: dict[int, int] = {}
+        self._next_landmark = 0
+        self._strikes: dict[int, int] = {}
+        #: Track ids rejected as off the plane.
+        self.rejected_tracks: set[int] = set()
+        self._rejected_keys: set[int] = set()
+        self._pruned = False
+        self._pixel_noise: dict[float, gtsam.noiseModel.Base] = {}
+        self._plane_noise: dict[tuple[float, ...], gtsam.noiseModel.Base] = {}
+        #: Projection factors added, and landmarks started.
+        self.counts = {"observations": 0, "landmarks": 0}
+
+    def _set_acceleration_sigma(self, value: float | Sequence[float]) -> None:
+        #: (s_w, s_v) of the motion factors added from now on.
+        self.acceleration_sigma = check_acceleration_sigma(value)
+        self._motion_noise = MotionNoise(self.acceleration_sigma)
+
+    def run(self, frames: Iterable[FrameMeasurement]) -> Trajectory:
+        """Fuse a whole sequence; "auto" process noise is fitted on all of it first."""
+        frames = list(frames)
+        if not self._indices:
+            self.process_noise.fit_all(frames)
+            self._set_acceleration_sigma(self.process_noise.sigma)
+        return super().run(frames)
+
+    # -- per frame --------------------------------------------------------------------------
+
+    def _update(self, frame: FrameMeasurement) -> StateEstimate:
+        k, t = int(frame.index), float(frame.t)
+        if self._times and not t > self._times[-1]:
+            raise InputError(f"frame {k}: time {t} does not increase")
+        points = frame.points
+        if points is not None:
+            m = np.asarray(points.m, dtype=float)
+            if m.ndim != 2 or m.shape[1] != 2 or len(m) != len(points.ids):
+                raise InputError(f"frame {k}: points.m must be (N, 2) with N = len(points.ids)")
+        if self.process_noise.observe(frame):
+            self._set_acceleration_sigma(self.process_noise.sigma)
+        graph = gtsam.NonlinearFactorGraph()
+        values = gtsam.Values()
+        twist_guess = (
+            np.asarray(frame.velocity.twist, dtype=float)
+            if frame.velocity is not None
+            else self._twist
+        )
+        if not self._indices:
+            graph.add(gtsam.PriorFactorPose3(X(k), gtsam.Pose3(), self._world_noise))
+            graph.add(gtsam.PriorFactorVector(V(k), _ZERO6, self._twist_prior))
+            pose_guess = gtsam.Pose3()
+        else:
+            previous, dt = self._indices[-1], t - self._times[-1]
+            motion_noise, walk_noise = self._motion_noise(dt)
+            graph.add(motion_factor(X(previous), X(k), V(previous), V(k), dt, motion_noise))
+            graph.add(gtsam.BetweenFactorVector(V(previous), V(k), _ZERO6, walk_noise))
+            if frame.pose is not None:
+                world = self.pose_in_world(frame.pose)
+                pose_guess = gtsam.Pose3(gtsam.Rot3(world.rotation), world.position)
+            else:
+                step = gtsam.Pose3.Expmap((0.5 * dt) * (self._twist + twist_guess))
+                pose_guess = self._pose.compose(step)
+        new = self._observe(graph, values, k, pose_guess, points) if points is not None else []
+        values.insert(X(k), pose_guess)
+        values.insert(V(k), twist_guess)
+        self._indices.append(k)
+        self._times.append(t)
+        pose, twist, covariance = self.backend.add(graph, values, k, t - self._times[0])
+        self._pose, self._twist = pose, np.asarray(twist, dtype=float)
+        if new:
+            self._gate(pose, new, points.sigma)  # type: ignore[union-attr]
+        return StateEstimate(
+            index=k,
+            t=t,
+            rotation=pose.rotation().matrix(),
+            position=np.asarray(pose.translation(), dtype=float),
+            twist=self._twist.copy(),
+            covariance=covariance,
+        )
+
+    def _observe(
+        self,
+        graph: gtsam.NonlinearFactorGraph,
+        values: gtsam.Values,
+        k: int,
+        pose_guess: gtsam.Pose3,
+        points: PointObservations,
+    ) -> list[tuple[int, int, np.ndarray]]:
+        """Projection factors of the frame's points (new landmarks as needed); returns
+        (track id, landmark key, m) of each observation added."""
+        noise = self._pixel_noise_model(float(points.sigma))
+        normal = np.asarray(points.normal, dtype=float)
+        distance = float(points.distance)
+        added = []
+        coordinates = np.asarray(points.m, dtype=float)
+        for track, m in zip(np.asarray(points.ids).tolist(), coordinates, strict=True):
+            if track in self.rejected_tracks:
+                continue
+            key = self._landmarks.get(track)
+            if key is None or not self._live(key):
+                point = back_project(pose_guess, m, normal, distance)
+                if point is None:
+                    continue
+                key = L(self._next_landmark)
+                self._next_landmark += 1
+                self._landmarks[track] = key
+                self.counts["landmarks"] += 1
+                values.insert(key, point)
+                graph.add(gtsam.PriorFactorPoint3(key, point, self._plane_model(normal)))
+            graph.add(gtsam.GenericProjectionFactorCal3_S2(m, noise, X(k), key, _UNIT_CALIBRATION))
+            self.counts["observations"] += 1
+            added.append((track, key, m))
+        return added
+
+    def _pixel_noise_model(self, sigma: float) -> gtsam.noiseModel.Base:
+        model = self._pixel_noise.get(sigma)
+        if model is None:
+            sigma = as_number(sigma, "points.sigma", above=0.0)
+            model = gtsam.noiseModel.Robust.Create(
+                gtsam.noiseModel.mEstimator.Huber.Create(self.robust_threshold),
+                gtsam.noiseModel.Isotropic.Sigma(2, sigma),
+            )
+            self._pixel_noise[sigma] = model
+        return model
+
+    def _plane_model(self, normal: np.ndarray) -> gtsam.noiseModel.Base:
+        """Square-root information [n*^T / plane_sigma; in-plane axes / IN_PLANE_SIGMA]."""
+        cache_key = tuple(np.round(normal, 12))
+        model = self._plane_noise.get(cache_key)
+        if model is None:
+            a = np.cross(normal, [1.0, 0.0, 0.0] if abs(normal[0]) < 0.9 else [0.0, 1.0, 0.0])
+            a /= np.linalg.norm(a)
+            b = np.cross(normal, a)
+            R = np.vstack((normal / self.plane_sigma, a / IN_PLANE_SIGMA, b / IN_PLANE_SIGMA))
+            model = gtsam.noiseModel.Gaussian.SqrtInformation(R)
+            self._plane_noise[cache_key] = model
+        return model
+
+    def _live(self, key: int) -> bool:
+        """Whether landmark ``key`` is still a variable of the online solver."""
+        live = getattr(self.backend, "live", None)
+        if live is not None:
+            return key in live
+        isam = getattr(self.backend, "isam", None)
+        return True if isam is None else bool(isam.valueExists(key))
+
+    def _point(self, key: int) -> np.ndarray:
+        """The current estimate of landmark ``key``."""
+        isam = getattr(self.backend, "isam", None)
+        live = getattr(self.backend, "live", None)
+        if isam is not None and (live is None or key in live):
+            return np.asarray(isam.calculateEstimatePoint3(key), dtype=float)
+        return np.asarray(self.backend.initial.atPoint3(key), dtype=float)  # type: ignore[attr-defined]
+
+    def _gate(
+        self, pose: gtsam.Pose3, added: list[tuple[int, int, np.ndarray]], sigma: float
+    ) -> None:
+        """Count the observations whose whitened residual fails the chi^2 gate."""
+        R = pose.rotation().matrix()
+        p = np.asarray(pose.translation(), dtype=float)
+        for track, key, m in added:
+            c = R.T @ (self._point(key) - p)
+            if c[2] > 1e-9:
+                r = (m - c[:2] / c[2]) / sigma
+                chi2 = float(r @ r)
+            else:
+                chi2 = math.inf
+            if chi2 <= self.reject_chi2:
+                self._strikes.pop(track, None)
+                continue
+            self._strikes[track] = self._strikes.get(track, 0) + 1
+            if self._strikes[track] >= self.reject_after:
+                self.rejected_tracks.add(track)
+                self._rejected_keys.add(key)
+
+    # -- results ----------------------------------------------------------------------------
+
+    def _prune(self) -> None:
+        """Drop the factors and values of rejected landmarks from the final graph."""
+        if self._pruned or not self._rejected_keys or not isinstance(self.backend, BatchBackend):
+            return
+        backend = self.backend
+        backend.final([], marginals=False)  # let an ISAM2 back end hand over its estimate
+        kept = gtsam.NonlinearFactorGraph()
+        for i in range(backend.graph.size()):
+            factor = backend.graph.at(i)
+            if factor is not None and not self._rejected_keys.intersection(factor.keys()):
+                kept.add(factor)
+        live: set[int] = getattr(backend, "live", set())
+        for key in self._rejected_keys:
+            live.discard(key)  # not handed over again by the ISAM2 back end
+            if backend.initial.exists(key):
+                backend.initial.erase(key)
+        backend.graph = kept
+        backend._result = None
+        self._pruned = True
+
+    def trajectory(self) -> Trajectory:
+        """The smoothed estimate of every frame so far (the class docstring per solver)."""
+        n = len(self._indices)
+        rotations = np.empty((n, 3, 3))
+        positions = np.empty((n, 3))
+        twists = np.empty((n, 6))
+        covariances = np.empty((n, 12, 12)) if self.compute_covariance else None
+        if n:
+            self._prune()
+            finals = self.backend.final(self._indices, marginals=self.compute_covariance)
+            for i, (pose, twist, cov) in enumerate(finals):
+                rotations[i] = pose.rotation().matrix()
+                positions[i] = pose.translation()
+                twists[i] = twist
+                if covariances is not None:
+                    covariances[i] = cov
+        return Trajectory(
+            t=np.array(self._times, dtype=float),
+            rotations=rotations,
+            positions=positions,
+            twists=twists,
+            covariances=covariances,
+        )

@@ -1,0 +1,213 @@
+"""The back ends of the tightly coupled smoother (:mod:`hvo_graph.estimators.tight`).
+
+Beside the homography graph's back ends (:mod:`hvo_graph.estimators.solvers`), with
+what plane landmarks L(j) (``Point3``, symbol ``l``) need: a relinearization
+threshold of their own, timestamps in the fixed-lag window, and no window for the
+default solver.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Iterator, Sequence
+
+import gtsam
+import numpy as np
+from gtsam.symbol_shorthand import V, X
+
+from hvo_graph.estimators.solvers import BatchBackend, FixedLagBackend, FrameValues
+
+__all__ = ["LandmarkFixedLagBackend", "WindowIsam2Backend", "copy_value", "tight_isam2_params"]
+
+_LANDMARK = ord("l")
+
+
+def tight_isam2_params(threshold: float, skip: int) -> gtsam.ISAM2Params:
+    """ISAM2 parameters: poses and landmarks relinearize (every factor is affine in V)."""
+    params = gtsam.ISAM2Params()
+    thresholds = gtsam.ISAM2ThresholdMap()
+    thresholds.insert(("x", np.full(6, threshold)))
+    thresholds.insert(("v", np.full(6, np.inf)))
+    thresholds.insert(("l", np.full(3, threshold)))
+    params.setRelinearizeThreshold(thresholds)
+    params.relinearizeSkip = skip
+    params.enablePartialRelinearizationCheck = True
+    params.findUnusedFactorSlots = True
+    # QR: the world prior and the plane rows are far stiffer than the rest.
+    params.setFactorization("QR")
+    return params
+
+
+class LandmarkFixedLagBackend(FixedLagBackend):
+    """The fixed-lag back end, with every landmark a factor touches stamped with the frame
+    (a landmark stays in the window while it is observed)."""
+
+    def _update(
+        self,
+        graph: gtsam.NonlinearFactorGraph,
+        values: gtsam.Values,
+        index: int,
+        stamp_time: float,
+    ) -> None:
+        stamp = self.stamp(stamp_time)
+        self._freeze_leaving(stamp)
+        stamps = {X(index): stamp, V(index): stamp}
+        for i in range(graph.size()):
+            for key in graph.at(i).keys():
+                if gtsam.Symbol(key).chr() == _LANDMARK:
+                    stamps[key] = stamp
+        self.smoother.update(graph, values, stamps)
+        self.window.append((index, stamp))
+        self._collect_frozen()
+
+
+class WindowIsam2Backend(BatchBackend):
+    """ISAM2 over a window of recent frames for the online estimates, the batch
+    Levenberg-Marquardt optimum of the whole graph for the final ones.
+
+    Every landmark in view for the whole sequence is touched by every frame, so in one
+    ISAM2 over the whole sequence each update scans all of its factors (cost growing
+    with the sequence), and GTSAM's fixed-lag smoother hangs one more dense marginal
+    factor on it per marginalization (the same growth). Here, once the ISAM2 holds
+    ``2 window`` frames, it is rebuilt from the last ``window`` frames' factors plus
+    one prior: the older factors linearized at the current estimate, their own
+    variables eliminated (the Gaussian marginal on what they share with the kept
+    frames: the oldest kept X, V and the landmarks still observed). The cost per frame
+    is bounded, the rebuild amortized over ``window`` frames. Landmarks only the older
+    frames saw leave the online problem (:attr:`live`).
+    """
+
+    solver = "isam2"
+
+    def __init__(
+        self,
+        params: gtsam.ISAM2Params,
+        *,
+        window: int = 30,
+        max_iterations: int,
+        compute_covariance: bool,
+    ) -> None:
+        super().__init__(max_iterations=max_iterations, compute_covariance=compute_covariance)
+        self.params = params
+        self.window = int(window)
+        self.isam = gtsam.ISAM2(params)
+        # Held so the custom factors' callbacks are not handed copies (solvers docstring).
+        self.theta = self.isam.getLinearizationPoint()
+        #: Keys of the online problem (the landmarks a new observation may still use).
+        self.live: set[int] = set()
+        self._frames: list[tuple[int, gtsam.NonlinearFactorGraph]] = []
+        self._prior = gtsam.NonlinearFactorGraph()
+
+    def current_pose(self, index: int) -> gtsam.Pose3:
+        if X(index) in self.live:
+            return self.isam.calculateEstimatePose3(X(index))
+        return self.initial.atPose3(X(index))
+
+    def add(
+        self,
+        graph: gtsam.NonlinearFactorGraph,
+        values: gtsam.Values,
+        index: int,
+        stamp_time: float,
+    ) -> FrameValues:
+        super().add(graph, values, index, stamp_time)
+        self.isam.update(graph, values)
+        self.live.update(values.keys())
+        self._frames.append((index, graph))
+        pose = self.isam.calculateEstimatePose3(X(index))
+        twist = self.isam.calculateEstimateVector(V(index))
+        covariance = None
+        if self.compute_covariance:
+            joint = self.isam.jointMarginalCovariance([X(index), V(index)]).fullMatrix()
+            covariance = 0.5 * (joint + joint.T)
+        if len(self._frames) >= 2 * self.window:
+            self._rebuild()
+        return pose, twist, covariance
+
+    def online_graph(self) -> gtsam.NonlinearFactorGraph:
+        """The online problem's factors: the prior of the older frames and the recent
+        frames' own factors (what the current ISAM2 holds)."""
+        graph = gtsam.NonlinearFactorGraph()
+        graph.push_back(self._prior)
+        for _, frame_graph in self._frames:
+            graph.push_back(frame_graph)
+        return graph
+
+    def _rebuild(self) -> None:
+        """A fresh ISAM2 on the last ``window`` frames and the marginal of the older ones."""
+        estimate = self.isam.calculateBestEstimate()
+        old, kept = self._frames[: -self.window], self._frames[-self.window :]
+        dropped = {k for i, _ in old for k in (X(i), V(i))}
+        older = gtsam.NonlinearFactorGraph()
+        newer = gtsam.NonlinearFactorGraph()
+        carried = gtsam.NonlinearFactorGraph()  # older frames' factors on kept keys only
+        for graph in [self._prior, *(g for _, g in old), *(g for _, g in kept)]:
+            for n in range(graph.size()):
+                factor = graph.at(n)
+                (older if dropped.intersection(factor.keys()) else newer).add(factor)
+        for graph in [self._prior, *(g for _, g in old)]:
+            carried.push_back(_without(graph, dropped))  # e.g. a landmark's plane factor
+        kept_keys = set(newer.keyVector())
+        # Frames in time order, then the landmarks no kept frame sees: the chain is
+        # eliminated with fill-in only on the landmarks (key order interleaves badly).
+        gone = [k for k in older.keyVector() if k not in kept_keys and k not in dropped]
+        eliminate = [k for i, _ in old for k in (X(i), V(i))] + gone
+        # QR, as ISAM2 here: the world and plane priors are far stiffer than the pixels,
+        # and Cholesky's marginal of that system was not positive definite.
+        _, marginal = older.linearize(estimate).eliminatePartialMultifrontal(
+            gtsam.Ordering(eliminate), gtsam.EliminateQR
+        )
+        summary = gtsam.NonlinearFactorGraph()
+        for n in range(marginal.size()):
+            linear = marginal.at(n)
+            point = gtsam.Values()
+            for key in linear.keys():
+                copy_value(estimate, point, key)
+            summary.add(gtsam.LinearContainerFactor(linear, point))
+        self._prior = carried
+        self._prior.push_back(summary)
+        for key in self.live - kept_keys:  # leaving: their estimate starts the final solve
+            self.initial.update(key, _value(estimate, key))
+        self.live = kept_keys
+        values = gtsam.Values()
+        for key in kept_keys:
+            copy_value(estimate, values, key)
+        self.isam = gtsam.ISAM2(self.params)
+        self.theta = self.isam.getLinearizationPoint()
+        start = gtsam.NonlinearFactorGraph()
+        start.push_back(summary)
+        start.push_back(newer)  # holds the carried factors too
+        self.isam.update(start, values)
+        # The frames' own factors are kept only for the next rebuild's split.
+        self._frames = [(i, _without(g, dropped)) for i, g in kept]
+
+    def final(self, indices: Sequence[int], *, marginals: bool = True) -> Iterator[FrameValues]:
+        if self._result is None:  # start the batch solve from the online estimate
+            best = self.isam.calculateBestEstimate()
+            for key in self.live:
+                if self.initial.exists(key):  # pruned (rejected) landmarks stay out
+                    self.initial.update(key, _value(best, key))
+        return super().final(indices, marginals=marginals)
+
+
+def _without(graph: gtsam.NonlinearFactorGraph, dropped: set[int]) -> gtsam.NonlinearFactorGraph:
+    """The factors of ``graph`` touching none of ``dropped`` (those went into the prior)."""
+    out = gtsam.NonlinearFactorGraph()
+    for n in range(graph.size()):
+        factor = graph.at(n)
+        if not dropped.intersection(factor.keys()):
+            out.add(factor)
+    return out
+
+
+def _value(source: gtsam.Values, key: int) -> object:
+    kind = gtsam.Symbol(key).chr()
+    if kind == ord("x"):
+        return source.atPose3(key)
+    if kind == _LANDMARK:
+        return source.atPoint3(key)
+    return source.atVector(key)
+
+
+def copy_value(source: gtsam.Values, target: gtsam.Values, key: int) -> None:
+    """Insert ``source``'s value of ``key`` (X pose, L landmark or V twist) into ``target``."""
+    target.insert(key, _value(source, key))
