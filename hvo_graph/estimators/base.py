@@ -14,12 +14,12 @@ from collections.abc import Iterable
 import numpy as np
 
 from hvo_graph.errors import InputError
+from hvo_graph.estimators.state_log import StateLog
 from hvo_graph.types import (
     FrameMeasurement,
     PoseMeasurement,
     StateEstimate,
     Trajectory,
-    trajectory_from_states,
 )
 
 
@@ -30,7 +30,7 @@ class Estimator(ABC):
     name: str = ""
 
     def __init__(self) -> None:
-        self._online: list[StateEstimate] = []
+        self._online = StateLog()
 
     @abstractmethod
     def _update(self, frame: FrameMeasurement) -> StateEstimate:
@@ -60,7 +60,7 @@ class Estimator(ABC):
         """
         if pose.reference == 0:
             return pose
-        keyframe = next((s for s in reversed(self._online) if s.index == pose.reference), None)
+        keyframe = self._online.find(pose.reference)
         if keyframe is None:
             raise InputError(
                 f"pose measurement refers to frame {pose.reference}, which was not estimated before"
@@ -84,7 +84,7 @@ class Estimator(ABC):
 
     def online_trajectory(self) -> Trajectory:
         """The online estimate of every frame so far (each as it was right after its update)."""
-        return trajectory_from_states(self._online)
+        return self._online.trajectory()
 
     def trajectory(self) -> Trajectory:
         """The final estimate of every frame so far (smoothed, for smoothers)."""

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import math
+from collections.abc import Collection
 
 import gtsam
 import numpy as np
@@ -18,6 +19,7 @@ def levenberg_marquardt(
     relative_tolerance: float = 1e-10,
     absolute_tolerance: float = 1e-12,
     initial_lambda: float = 1e-5,
+    fixed: Collection[int] = (),
 ) -> tuple[gtsam.Values, int]:
     """Minimize the graph's error with Levenberg-Marquardt (GTSAM's scheme, Python loop).
 
@@ -39,6 +41,8 @@ def levenberg_marquardt(
         max_iterations: most linearizations.
         relative_tolerance, absolute_tolerance: convergence test on the error decrease.
         initial_lambda: starting damping.
+        fixed: keys of variables held at their initial values (a hard zero-step
+            constraint in each linear system instead of the damping).
     Returns:
         (optimized values, iterations used).
     """
@@ -47,7 +51,9 @@ def levenberg_marquardt(
     zeros = values.zeroVectors()  # once: it is O(number of variables)
     dims = [(key, zeros.at(key).size) for key in values.keys()]
     units = {d: gtsam.noiseModel.Unit.Create(d) for _, d in dims}
+    held = {d: gtsam.noiseModel.Constrained.All(d) for _, d in dims}
     eyes = {d: np.eye(d) for _, d in dims}
+    fixed = set(fixed)
     lam = initial_lambda
     for iteration in range(1, max_iterations + 1):
         linear = graph.linearize(values)
@@ -56,7 +62,10 @@ def levenberg_marquardt(
             damped.push_back(linear)
             root = math.sqrt(lam)
             for key, d in dims:
-                damped.add(key, root * eyes[d], np.zeros(d), units[d])
+                if key in fixed:
+                    damped.add(key, eyes[d], np.zeros(d), held[d])
+                else:
+                    damped.add(key, root * eyes[d], np.zeros(d), units[d])
             candidate = values.retract(damped.optimize())
             candidate_error = graph.error(candidate)
             if candidate_error <= error:

@@ -29,19 +29,14 @@ and the reasons for every default):
   (:mod:`hvo_graph.estimators.noise_estimation`);
 - optional robust loss (Huber or Cauchy) on the two measurement factors.
 
-Solvers (one :class:`~hvo_graph.estimators.base.Estimator` interface; the back
-ends are in :mod:`hvo_graph.estimators.solvers`):
-
-- ``"isam2"`` (``--method smoother``): online, ISAM2 over a sliding window (each
-  frame's value right after its update); :meth:`trajectory`, the batch optimum;
-- ``"batch"``: Levenberg-Marquardt over the whole graph; its online estimates
-  are the initial values (the frame's own measurement or the prediction);
-- ``"fixed-lag"``: GTSAM's ``IncrementalFixedLagSmoother`` (``lag`` seconds);
-  :meth:`trajectory` gives each frame's value as it left the window.
+Solvers (``"isam2"``: ``--method smoother``; ``"batch"``; ``"fixed-lag"``): the
+back ends of :mod:`hvo_graph.estimators.solvers`, whose docstrings say what the
+online and the final (:meth:`trajectory`) estimates of each are.
 """
 
 from __future__ import annotations
 
+import functools
 import math
 from collections.abc import Iterable, Sequence
 
@@ -70,6 +65,7 @@ from hvo_graph.estimators.solvers import (
     levenberg_marquardt,
     make_backend,
 )
+from hvo_graph.estimators.state_log import SortedIndices
 from hvo_graph.types import FrameMeasurement, PoseMeasurement, StateEstimate, Trajectory
 
 __all__ = [
@@ -102,17 +98,16 @@ ANCHOR_START_SIGMA: float = 1.0
 #: Standard deviation (rad/s, m/s) of the zero-mean prior on the first twist V(k0).
 DEFAULT_INITIAL_TWIST_SIGMA: float = 10.0
 
-#: ISAM2 relinearizes a pose whose accumulated delta exceeds this (rad, m). The
-#: initial values are the measurements themselves, within noise (~2 cm, 0.5 deg)
-#: of the optimum, so the linearization error O(delta^2) stays far below the
-#: noise; on the paper scenario the final ISAM2 poses stay within 0.25 mm of the
-#: batch Levenberg-Marquardt optimum (docs/smoother.md).
+#: ISAM2 relinearizes a pose whose accumulated delta exceeds this (rad, m): the initial
+#: values (the measurements) are within noise (~2 cm, 0.5 deg) of the optimum, so the
+#: linearization error O(delta^2) stays far below the noise (docs/smoother.md).
 DEFAULT_RELINEARIZE_THRESHOLD: float = 0.05
 
 #: ISAM2 checks for relinearization every this many updates (GTSAM's default).
 DEFAULT_RELINEARIZE_SKIP: int = 10
 
 _ZERO6 = np.zeros(6)
+_ZERO66 = np.zeros((6, 6))  # one shared array, not one per frame (never written to)
 
 
 class FactorGraphSmoother(Estimator):
@@ -196,7 +191,7 @@ class FactorGraphSmoother(Estimator):
         self.velocity_factor_counts = {"used": 0, "skipped": 0}
         # Reference covariance of each frame's latest pose (by position), reference by frame.
         self._reference_cov: list[np.ndarray] = []
-        self._pose_reference: dict[int, int] = {}
+        self._last_reference: int | None = None  # of the latest frame's pose (None: none)
         if robust is not None and robust not in ROBUST_LOSSES:
             raise InputError(
                 f"robust: expected None or one of {', '.join(ROBUST_LOSSES)}, got {robust!r}"
@@ -208,6 +203,9 @@ class FactorGraphSmoother(Estimator):
             else as_number(robust_threshold, "robust_threshold", above=0.0)
         )
         self.compute_covariance = bool(compute_covariance)
+        self._pose_noise = functools.partial(
+            measurement_noise, robust=robust, threshold=self.robust_threshold
+        )
         #: The factors by role, for the smoothed error covariance (with covariances).
         self.record: FactorRecord | None = FactorRecord() if self.compute_covariance else None
         self._anchored = False  # X(k0) has its prior from the reference frame's noise
@@ -227,7 +225,7 @@ class FactorGraphSmoother(Estimator):
         # Frame bookkeeping: index and time of every frame, position by index.
         self._indices: list[int] = []
         self._times: list[float] = []
-        self._position: dict[int, int] = {}
+        self._known = SortedIndices(self._indices)
         self._pose = gtsam.Pose3()  # latest online estimate (for predictions)
         self._twist = _ZERO6
 
@@ -239,6 +237,7 @@ class FactorGraphSmoother(Estimator):
             relinearize_skip=relinearize_skip,
             max_iterations=max_iterations,
             compute_covariance=self.compute_covariance,
+            pose_noise=self._pose_noise,
         )
 
     @property
@@ -272,7 +271,7 @@ class FactorGraphSmoother(Estimator):
             self._indices,
             self.backend.in_graph,
             self.lag,
-            known=self._position,
+            known=self._known,
             split_reference=self.shared_reference_noise,
         )
 
@@ -286,10 +285,11 @@ class FactorGraphSmoother(Estimator):
     ) -> gtsam.Pose3:
         """The H_d factor of frame k (prior, between, or keyframe between); its pose value."""
         measured, cov, ref = pose_meas[:3]
-        noise = measurement_noise(cov, self.robust, self.robust_threshold)
+        noise = self._pose_noise(cov)
         if ref == 0:
             factor = gtsam.PriorFactorPose3(X(k), measured, noise)
             graph.add(factor)
+            self.backend.store.add_pose_prior(measured, cov)
             shared = pose_meas[3] if len(pose_meas) > 3 else None
             if shared is not None and not self._anchored:
                 self._anchor(graph, shared)
@@ -322,9 +322,11 @@ class FactorGraphSmoother(Estimator):
         self._add(graph, gtsam.PriorFactorPose3(X(self._indices[0]), gtsam.Pose3(), noise), "fixed")
         self._anchored = True
 
-    def _add(self, graph: gtsam.NonlinearFactorGraph, factor: object, role: str) -> None:
-        """Add a factor to the update's graph and, with covariances, to the record."""
+    def _add(self, graph: gtsam.NonlinearFactorGraph, factor: object, role: str, stored=False):
+        """Add a factor to the graph, the back end's store (unless ``stored``), the record."""
         graph.add(factor)
+        if not stored:
+            self.backend.store.add_factor(factor)
         if self.record is not None:
             getattr(self.record, role).append(factor)
 
@@ -340,6 +342,7 @@ class FactorGraphSmoother(Estimator):
         graph = gtsam.NonlinearFactorGraph()
         first = not self._indices
         dt = 0.0 if first else t - self._times[-1]
+        self.backend.store.add_frame(k)
         if first:
             world = self._anchor_start if self.shared_reference_noise else self._world_noise
             self._add(graph, gtsam.PriorFactorPose3(X(k), gtsam.Pose3(), world), "fixed")
@@ -350,19 +353,18 @@ class FactorGraphSmoother(Estimator):
             previous = self._indices[-1]
             motion_noise, walk_noise = self._process_noise(dt)
             motion = motion_factor(X(previous), X(k), V(previous), V(k), dt, motion_noise)
-            self._add(graph, motion, "motion")
+            self._add(graph, motion, "motion", stored=True)
             walk = gtsam.BetweenFactorVector(V(previous), V(k), _ZERO6, walk_noise)
-            self._add(graph, walk, "motion")
-        self._position[k] = len(self._indices)
+            self._add(graph, walk, "motion", stored=True)
+            self.backend.store.add_motion(dt, self.acceleration_sigma)  # both, as numbers
         self._indices.append(k)
         self._times.append(t)
-        if pose_meas is not None:
-            self._pose_reference[k] = pose_meas[2]
+        self._last_reference = pose_meas[2] if pose_meas is not None else None
         shared = pose_meas[3] if pose_meas is not None and len(pose_meas) > 3 else None
         if shared is not None and pose_meas is not None and pose_meas[2] == 0:
-            shared = np.zeros((6, 6))  # in the graph: the anchor X(k0) carries it
+            shared = _ZERO66  # in the graph: the anchor X(k0) carries it
         if shared is None:  # no new pose: the latest one's reference noise still applies
-            shared = self._reference_cov[-1] if self._reference_cov else np.zeros((6, 6))
+            shared = self._reference_cov[-1] if self._reference_cov else _ZERO66
         self._reference_cov.append(shared)
 
         # Initial values: the frame's own measurements, else the motion-model prediction.
@@ -409,14 +411,14 @@ class FactorGraphSmoother(Estimator):
         )
 
     def _poses_span(self, k: int, pose_meas: tuple | None, nodes: list[int]) -> bool:
-        """Whether H_d poses of the previous frame and of frame k, against the same
-        reference (or frame k's against the previous frame), measure the H_c interval."""
+        """Whether H_d poses of the previous frame and of frame k already measure the H_c
+        interval (against one reference, or frame k's against the previous frame)."""
         if self.velocity_factors == "all" or pose_meas is None or len(self._indices) == 0:
             return False
         previous = self._indices[-1]
         if nodes != [previous, k]:
             return False
-        return poses_span(previous, self._pose_reference.get(previous), pose_meas[2])
+        return poses_span(previous, self._last_reference, pose_meas[2])
 
     def _with_anchor_noise(
         self, covariance: np.ndarray, pose: gtsam.Pose3, anchor: gtsam.Pose3

@@ -29,12 +29,18 @@ from __future__ import annotations
 import math
 from abc import ABC, abstractmethod
 from collections import deque
-from collections.abc import Iterator, Sequence
+from collections.abc import Callable, Iterator, Sequence
 
 import gtsam
 import numpy as np
 from gtsam.symbol_shorthand import V, X
 
+from hvo_graph.estimators.factor_store import (
+    FactorStore,
+    batch_marginals,
+    copy_value,
+    solve_in_chunks,
+)
 from hvo_graph.estimators.least_squares import levenberg_marquardt
 
 #: The fixed-lag smoother marginalizes in blocks of lag / MARGINALIZATION_BLOCKS
@@ -88,6 +94,8 @@ class Backend(ABC):
 
     #: The ``solver`` name of the back end.
     solver: str = ""
+    #: Where the smoother also keeps every factor, compactly (by default: nowhere).
+    store: FactorStore = FactorStore(None)
 
     def __init__(self, *, compute_covariance: bool) -> None:
         self.compute_covariance = compute_covariance
@@ -289,23 +297,14 @@ class BatchBackend(Backend):
 
     def final(self, indices: Sequence[int], *, marginals: bool = True) -> Iterator[FrameValues]:
         values = self.values()
-        # One ISAM2 elimination at the optimum gives the joint marginals quickly
-        # (gtsam.Marginals took O(N) per query here); its linearization point is
-        # held (second item) so the custom factors are not handed copies.
-        elimination: tuple[gtsam.ISAM2, gtsam.Values] | None = None
         if self.compute_covariance and marginals:
-            isam = gtsam.ISAM2()
-            elimination = (isam, isam.getLinearizationPoint())
-            isam.update(self.graph, values)
+            yield from batch_marginals(self.graph, values, indices)
+            return
         for index in indices:
-            cov = None
-            if elimination is not None:
-                c = elimination[0].jointMarginalCovariance([X(index), V(index)]).fullMatrix()
-                cov = _symmetric(c)
-            yield values.atPose3(X(index)), values.atVector(V(index)), cov
+            yield values.atPose3(X(index)), values.atVector(V(index)), None
 
 
-class Isam2Backend(BatchBackend):
+class Isam2Backend(Backend):
     """ISAM2 over a sliding window for the online estimates, batch LM for the final ones.
 
     Online: GTSAM's ``IncrementalFixedLagSmoother`` keeps the last ``window``
@@ -319,9 +318,11 @@ class Isam2Backend(BatchBackend):
     docs/performance.md has a reproduction.)
 
     Final (:meth:`final`): the whole graph, the same factors as the
-    ``"batch"`` solver's, solved by :func:`levenberg_marquardt` from the
-    window's estimates (each frame's value as it left the window), so the
-    smoothed trajectory and its marginals are the batch ones.
+    ``"batch"`` solver's, kept in compact arrays (:attr:`store`, filled by the
+    smoother) and solved from the window's estimates (each frame's value as it
+    left the window) chunk by chunk until it is stationary
+    (:func:`~hvo_graph.estimators.factor_store.solve_in_chunks`): the batch
+    optimum, in memory bounded by one chunk's solve.
 
     A factor that touches a variable already marginalized (a keyframe first
     used after it left the window, a twist interval reaching that far back)
@@ -338,8 +339,17 @@ class Isam2Backend(BatchBackend):
         window: int,
         max_iterations: int,
         compute_covariance: bool,
+        pose_noise: Callable[[np.ndarray], gtsam.noiseModel.Base],
     ) -> None:
-        super().__init__(max_iterations=max_iterations, compute_covariance=compute_covariance)
+        super().__init__(compute_covariance=compute_covariance)
+        self.max_iterations = max_iterations
+        #: Every factor of the sequence, for the final solve (the smoother adds them).
+        self.store = FactorStore(pose_noise)
+        #: Each frame's value as it left the window (the final solve's initial values).
+        self.initial = gtsam.Values()
+        self._result: gtsam.Values | None = None
+        #: The largest move of each sweep of the last final solve (solve_in_chunks).
+        self.moves: list[float] = []
         #: Marginalization block (frames): stamps are frame counts rounded down to it.
         self.block = max(1, window // MARGINALIZATION_BLOCKS)
         # Half a block more than the window keeps "stamp < latest - lag" away from ties.
@@ -364,7 +374,8 @@ class Isam2Backend(BatchBackend):
         index: int,
         stamp_time: float,
     ) -> FrameValues:
-        super().add(graph, values, index, stamp_time)
+        self.initial.insert(values)
+        self._result = None
         stamp = float(self._count // self.block * self.block)
         self._count += 1
         stamps = {X(index): stamp, V(index): stamp}
@@ -390,8 +401,7 @@ class Isam2Backend(BatchBackend):
         return pose, twist, self.joint_covariance(index) if self.compute_covariance else None
 
     def joint_covariance(self, index: int) -> np.ndarray:
-        """The 12x12 marginal covariance of [X(index) tangent; V(index)] in the window
-        (the frames marginalized before it included, as a linear prior)."""
+        """The 12x12 marginal of [X(index) tangent; V(index)] in the window (with its prior)."""
         return _symmetric(self.isam.jointMarginalCovariance([X(index), V(index)]).fullMatrix())
 
     def _record_leaving(self, stamp: float) -> list[int]:
@@ -404,7 +414,7 @@ class Isam2Backend(BatchBackend):
             # limited delta, which can be stale far from the root, where these are.
             estimate = self.isam.calculateBestEstimate()
             for key in leaving:
-                _copy_value(estimate, self.initial, key)
+                copy_value(estimate, self.initial, key)
         return leaving
 
     def _conditioned(
@@ -421,9 +431,9 @@ class Isam2Backend(BatchBackend):
                 source = self.isam.calculateEstimate()
             else:
                 source = self.initial
-            _copy_value(source, point, key)
+            copy_value(source, point, key)
             if key in self.live or values.exists(key):
-                _copy_value(source, kept, key)
+                copy_value(source, kept, key)
         if kept.size() == 0:
             return None
         A, b = gtsam.JacobianFactor(factor.linearize(point)).jacobian()
@@ -439,27 +449,25 @@ class Isam2Backend(BatchBackend):
                 linear = gtsam.JacobianFactor(k1, A1, k2, A2, b, unit)
         return gtsam.LinearContainerFactor(linear, kept)
 
+    def values(self) -> gtsam.Values:
+        """The optimum of the graph so far (solved once, then kept until the next frame)."""
+        if self._result is None:
+            result = gtsam.Values(self.initial)
+            if self.live:
+                estimate = self.isam.calculateBestEstimate()
+                for key in self.live:
+                    copy_value(estimate, result, key)
+            self.moves = solve_in_chunks(self.store, result, max_iterations=self.max_iterations)
+            self._result = result
+        return self._result
+
     def final(self, indices: Sequence[int], *, marginals: bool = True) -> Iterator[FrameValues]:
-        if self._result is None and self.live:
-            estimate = self.isam.calculateBestEstimate()
-            for key in self.live:
-                _copy_value(estimate, self.initial, key)
-        return super().final(indices, marginals=marginals)
-
-
-def _copy_value(source: gtsam.Values, target: gtsam.Values, key: int) -> None:
-    """Set ``target``'s value of ``key`` (an X pose, a V twist or an L landmark) to ``source``'s."""
-    kind = gtsam.Symbol(key).chr()
-    if kind == ord("x"):
-        value = source.atPose3(key)
-    elif kind == ord("l"):  # the tightly coupled smoother's plane landmarks (Point3)
-        value = source.atPoint3(key)
-    else:
-        value = source.atVector(key)
-    if target.exists(key):
-        target.update(key, value)
-    else:
-        target.insert(key, value)
+        values = self.values()
+        if self.compute_covariance and marginals:
+            yield from batch_marginals(self.store.whole_graph(), values, indices)
+            return
+        for index in indices:
+            yield values.atPose3(X(index)), values.atVector(V(index)), None
 
 
 def make_backend(
@@ -470,8 +478,10 @@ def make_backend(
     relinearize_skip: int,
     max_iterations: int,
     compute_covariance: bool,
+    pose_noise: Callable[[np.ndarray], gtsam.noiseModel.Base],
 ) -> Backend:
-    """The back end called ``solver`` ("isam2", "batch" or "fixed-lag"), options checked."""
+    """The back end called ``solver`` ("isam2", "batch" or "fixed-lag"), options checked;
+    ``pose_noise``: the noise model of an H_d pose factor from its covariance."""
     if solver == BatchBackend.solver:
         return BatchBackend(max_iterations=max_iterations, compute_covariance=compute_covariance)
     params = isam2_params(
@@ -486,4 +496,5 @@ def make_backend(
         window=ONLINE_WINDOW,
         max_iterations=max_iterations,
         compute_covariance=compute_covariance,
+        pose_noise=pose_noise,
     )

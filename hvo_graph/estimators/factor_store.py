@@ -1,0 +1,276 @@
+"""The default smoother's whole graph in compact arrays, and its final solve in chunks.
+
+The final trajectory of the default smoother is the batch optimum of every
+factor of the sequence. Kept as GTSAM objects, those factors cost ~3.4 kB per
+frame (a Python ``CustomFactor`` closure per motion factor, a noise model per
+measurement), and one Levenberg-Marquardt solve of the whole graph held
+another ~9 kB per frame at its peak (linearized system, elimination tree,
+iterates): 1.1 GiB at 100,000 frames. Here
+
+- the two factors of every frame that depend only on numbers (the motion pair
+  X(k-1), X(k), V(k-1), V(k) with its dt and (s_w, s_v); an H_d pose against
+  the world, with its pose and 6x6 covariance) are rows of growing numpy
+  arrays, 56 floats per frame, rebuilt as GTSAM factors when solved; any other
+  factor (anchor and first-frame priors, keyframe between factors, H_c twist
+  factors) is kept as it is, with the span of frames it touches;
+- :func:`solve_in_chunks` solves the graph chunk by chunk: the factors
+  touching a chunk of consecutive frames, with the frames just outside it held
+  at their current values (block Gauss-Seidel, overlapping chunks). A sweep
+  over every chunk is repeated until no value moves by more than the
+  tolerance: then every frame's gradient is zero, the stationary point of the
+  whole problem, i.e. the batch optimum (to that tolerance). The graph is a
+  chain, so a change at a chunk's edge fades within a few tens of frames and
+  a second sweep only confirms the first. Peak memory: one chunk's solve.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable, Iterator, Sequence
+
+import gtsam
+import numpy as np
+from gtsam.symbol_shorthand import V, X
+
+from hvo_graph.estimators.factors import motion_factor
+from hvo_graph.estimators.least_squares import levenberg_marquardt
+from hvo_graph.estimators.process_noise import MotionNoise
+
+__all__ = [
+    "CHUNK_FRAMES",
+    "CHUNK_OVERLAP",
+    "FactorStore",
+    "batch_marginals",
+    "copy_value",
+    "solve_in_chunks",
+]
+
+#: Frames solved together by :func:`solve_in_chunks` (a sequence this long or shorter
+#: is one batch solve).
+CHUNK_FRAMES: int = 2000
+
+#: Frames shared by consecutive chunks: a chunk's values near its far edge, held
+#: at the values before the sweep, are solved again by the next chunk.
+CHUNK_OVERLAP: int = 200
+
+#: A sweep that moves no value (rad, m, rad/s, m/s) by more than this ends the solve.
+CHUNK_TOLERANCE: float = 1e-9
+
+#: Most sweeps (the second one usually moves nothing beyond the tolerance).
+MAX_SWEEPS: int = 6
+
+
+class _Rows:
+    """A growing 2-D float array (capacity doubles): rows appended one at a time."""
+
+    def __init__(self, width: int, dtype: type = float) -> None:
+        self.data = np.empty((16, width), dtype=dtype)
+        self.size = 0
+
+    def append(self, row: Sequence[float] | np.ndarray) -> None:
+        if self.size == len(self.data):
+            self.data = np.concatenate([self.data, np.empty_like(self.data)])
+        self.data[self.size] = row
+        self.size += 1
+
+    def view(self) -> np.ndarray:
+        return self.data[: self.size]
+
+
+class FactorStore:
+    """Every factor of a smoother run, motion and world-pose factors as array rows.
+
+    Frames are numbered by position (0, 1, ... in the order added); a frame's
+    variables are X(index), V(index).
+
+    Args:
+        noise: the noise model of an H_d pose factor from its (6, 6) covariance (the
+            smoother's, robust loss included), called again when the factor is rebuilt.
+            None: a store that keeps nothing (for back ends that keep their own graph).
+    """
+
+    def __init__(self, noise: Callable[[np.ndarray], gtsam.noiseModel.Base] | None) -> None:
+        self.noise = noise
+        self.keeps = noise is not None
+        self._index = _Rows(1, np.int64)  # frame index by position
+        self._motion = _Rows(4)  # position of the later frame, dt, s_w, s_v
+        self._prior = _Rows(1 + 12 + 36)  # position, R (row-major) and t, covariance
+        self._span = _Rows(2, np.int64)  # oldest and newest position of each other factor
+        self._other: list[gtsam.NonlinearFactor] = []
+        self._noise_models: dict[tuple[float, float], MotionNoise] = {}
+
+    def __len__(self) -> int:
+        return self._index.size
+
+    def add_frame(self, index: int) -> None:
+        """A new frame (its index larger than every earlier one); the factors added next
+        are on it."""
+        if not self.keeps:
+            return
+        self._index.append([index])
+
+    def add_motion(self, dt: float, sigma: tuple[float, float]) -> None:
+        """The motion and twist random-walk factors between the previous frame and the
+        newest one, over ``dt`` with acceleration sigma (s_w, s_v)."""
+        if not self.keeps:
+            return
+        self._motion.append([len(self) - 1, dt, *sigma])
+
+    def add_pose_prior(self, pose: gtsam.Pose3, covariance: np.ndarray) -> None:
+        """An H_d pose factor against the world on the newest frame."""
+        if not self.keeps:
+            return
+        row = np.empty(49)
+        row[0] = len(self) - 1
+        row[1:10] = pose.rotation().matrix().ravel()
+        row[10:13] = pose.translation()
+        row[13:] = np.asarray(covariance, dtype=float).ravel()
+        self._prior.append(row)
+
+    def add_factor(self, factor: gtsam.NonlinearFactor) -> None:
+        """Any other factor, on frames added already."""
+        if not self.keeps:
+            return
+        indices = self._index.view()[:, 0]
+        frames = [gtsam.Symbol(key).index() for key in factor.keys()]
+        places = np.searchsorted(indices, frames)
+        self._span.append([places.min(), places.max()])
+        self._other.append(factor)
+
+    def indices(self) -> np.ndarray:
+        """(K,) frame index of every position."""
+        return self._index.view()[:, 0]
+
+    def graph(self, first: int, stop: int) -> tuple[gtsam.NonlinearFactorGraph, range]:
+        """Every factor touching a frame at a position in [first, stop), and the range of
+        positions those factors touch."""
+        indices = self.indices()
+        graph = gtsam.NonlinearFactorGraph()
+        lo, hi = first, stop
+        motion = self._motion.view()
+        for p, dt, s_w, s_v in motion[(motion[:, 0] >= first) & (motion[:, 0] < stop + 1)]:
+            p = int(p)
+            previous, k = int(indices[p - 1]), int(indices[p])
+            sigma = (float(s_w), float(s_v))
+            noise = self._noise_models.get(sigma)
+            if noise is None:
+                noise = self._noise_models[sigma] = MotionNoise(sigma)
+            motion_noise, walk_noise = noise(float(dt))
+            graph.add(motion_factor(X(previous), X(k), V(previous), V(k), float(dt), motion_noise))
+            graph.add(gtsam.BetweenFactorVector(V(previous), V(k), np.zeros(6), walk_noise))
+            lo, hi = min(lo, p - 1), max(hi, p + 1)
+        prior = self._prior.view()
+        for row in prior[(prior[:, 0] >= first) & (prior[:, 0] < stop)]:
+            pose = gtsam.Pose3(gtsam.Rot3(row[1:10].reshape(3, 3)), row[10:13])
+            key = X(int(indices[int(row[0])]))
+            noise = self.noise(row[13:].reshape(6, 6))  # type: ignore[misc]
+            graph.add(gtsam.PriorFactorPose3(key, pose, noise))
+        span = self._span.view()
+        for i in np.flatnonzero((span[:, 0] < stop) & (span[:, 1] >= first)):
+            graph.add(self._other[i])
+            lo, hi = min(lo, int(span[i, 0])), max(hi, int(span[i, 1]) + 1)
+        return graph, range(lo, hi)
+
+    def whole_graph(self) -> gtsam.NonlinearFactorGraph:
+        """Every factor (as GTSAM objects: for small problems and tests)."""
+        return self.graph(0, len(self))[0]
+
+
+def _frame_values(source: gtsam.Values, indices: np.ndarray) -> gtsam.Values:
+    values = gtsam.Values()
+    for k in indices:
+        values.insert(X(int(k)), source.atPose3(X(int(k))))
+        values.insert(V(int(k)), source.atVector(V(int(k))))
+    return values
+
+
+def solve_in_chunks(
+    store: FactorStore,
+    values: gtsam.Values,
+    *,
+    chunk: int = CHUNK_FRAMES,
+    overlap: int = CHUNK_OVERLAP,
+    tolerance: float = CHUNK_TOLERANCE,
+    max_iterations: int = 100,
+) -> list[float]:
+    """Move ``values`` (every frame's X and V) to the optimum of the store's graph.
+
+    At most ``chunk`` frames are solved at once by :func:`levenberg_marquardt`, the
+    frames just outside held (module docstring). A sequence of at most ``chunk``
+    frames is one plain batch solve. Longer ones: a sweep over chunks of ``chunk``
+    frames, consecutive ones sharing ``overlap``; then the seams between chunks
+    (``overlap`` frames either side of each chunk's start) are solved again until
+    none moves by more than ``tolerance`` (a full sweep between two seam sweeps
+    that do move). Returns the largest move of each sweep, in order.
+    """
+    total = len(store)
+    indices = store.indices()
+    if total <= chunk:
+        return [_solve_range(store, values, indices, 0, total, max_iterations)]
+    starts = [0]
+    while starts[-1] + chunk < total:
+        starts.append(starts[-1] + max(1, chunk - overlap))
+    chunks = [(first, min(first + chunk, total)) for first in starts]
+    seams = [(first - overlap, min(first + overlap, total)) for first in starts[1:]]
+    moves = [max(_solve_range(store, values, indices, *c, max_iterations) for c in chunks)]
+    while len(moves) < MAX_SWEEPS:
+        moves.append(max(_solve_range(store, values, indices, *s, max_iterations) for s in seams))
+        if moves[-1] <= tolerance:
+            break
+        moves.append(max(_solve_range(store, values, indices, *c, max_iterations) for c in chunks))
+    return moves
+
+
+def _solve_range(
+    store: FactorStore,
+    values: gtsam.Values,
+    indices: np.ndarray,
+    first: int,
+    stop: int,
+    max_iterations: int,
+) -> float:
+    """Solve the frames at positions [first, stop) with every other frame held; update
+    ``values``; return the largest move (any tangent coordinate)."""
+    graph, touched = store.graph(first, stop)
+    chunk_values = _frame_values(values, indices[touched.start : touched.stop])
+    outside = np.concatenate([indices[touched.start : first], indices[stop : touched.stop]])
+    held = [key for k in outside for key in (X(int(k)), V(int(k)))]
+    solved, _ = levenberg_marquardt(graph, chunk_values, max_iterations=max_iterations, fixed=held)
+    moved = chunk_values.localCoordinates(solved)
+    largest = 0.0
+    for k in indices[first:stop]:
+        x, v = X(int(k)), V(int(k))
+        largest = max(largest, float(np.abs(moved.at(x)).max()), float(np.abs(moved.at(v)).max()))
+        values.update(x, solved.atPose3(x))
+        values.update(v, solved.atVector(v))
+    return largest
+
+
+def batch_marginals(
+    graph: gtsam.NonlinearFactorGraph, values: gtsam.Values, indices: Sequence[int]
+) -> Iterator[tuple[gtsam.Pose3, np.ndarray, np.ndarray]]:
+    """Each frame's values and Bayesian marginal at the optimum ``values``."""
+    # One ISAM2 elimination at the optimum gives the joint marginals quickly
+    # (gtsam.Marginals took O(N) per query here); its linearization point is
+    # held so the custom factors are not handed copies.
+    isam = gtsam.ISAM2()
+    theta = isam.getLinearizationPoint()
+    isam.update(graph, values)
+    for index in indices:
+        c = isam.jointMarginalCovariance([X(index), V(index)]).fullMatrix()
+        yield values.atPose3(X(index)), values.atVector(V(index)), 0.5 * (c + c.T)
+    del theta
+
+
+def copy_value(source: gtsam.Values, target: gtsam.Values, key: int) -> None:
+    """Set ``target``'s value of ``key`` (an X pose, a V twist or an L landmark) to ``source``'s."""
+    kind = gtsam.Symbol(key).chr()
+    if kind == ord("x"):
+        value = source.atPose3(key)
+    elif kind == ord("l"):  # the tightly coupled smoother's plane landmarks (Point3)
+        value = source.atPoint3(key)
+    else:
+        value = source.atVector(key)
+    if target.exists(key):
+        target.update(key, value)
+    else:
+        target.insert(key, value)
