@@ -6,19 +6,22 @@ run is just a longer duration) this script
 
 1. simulates the sequence and runs the measurement front end over it once,
    timing every frame (H_d pose + H_c velocity per frame);
-2. feeds those same measurements to each estimator in this process, one after
-   the other: the paper's Kalman filter, the factor-graph smoother (default:
-   ISAM2 over a window, then the batch solve), with the fixed-lag smoother (1 s
-   window) and with batch Levenberg-Marquardt. Each runs ``run(frames)`` as the
-   command line does; every ``update`` call is timed, and the rest of ``run``
+2. feeds those same measurements to each estimator, one after the other: the
+   paper's Kalman filter, the factor-graph smoother (default: ISAM2 over a
+   window, then the batch solve), with the fixed-lag smoother (1 s window) and
+   with batch Levenberg-Marquardt. Each runs ``run(frames)`` as the command
+   line does; every ``update`` call is timed, and the rest of ``run``
    (process-noise fit, final ``trajectory()``: the batch solves happen there);
-3. measures peak memory in a fresh subprocess per configuration (component x
-   length), as the growth of the resident set while the component runs: the
-   peak resident set VmHWM of /proc/self/status (= ``getrusage`` ru_maxrss on
-   Linux) is reset (``/proc/self/clear_refs``) after the inputs are loaded, and
-   the figure reported is VmHWM after the run minus VmRSS before it. This counts
-   GTSAM's C++ allocations too, which ``tracemalloc`` does not see. Where the
-   reset is unavailable the ru_maxrss delta is reported (a lower bound);
+3. runs every configuration (component x length) once, in a fresh subprocess
+   that reports both its timing and its peak memory (the front end's
+   subprocess passes its measurements on through a file; ``--no-memory``: all
+   in this process). Peak memory is the growth of the resident set while the
+   component runs: the peak resident set VmHWM of /proc/self/status (=
+   ``getrusage`` ru_maxrss on Linux) is reset (``/proc/self/clear_refs``)
+   after the inputs are loaded, and the figure reported is VmHWM after the
+   run minus VmRSS before it. This counts GTSAM's C++ allocations too, which
+   ``tracemalloc`` does not see. Where the reset is unavailable the ru_maxrss
+   delta is reported (a lower bound);
 4. profiles the ISAM2 smoother (``--profile-component``) with cProfile on 3,000
    frames: where the time goes;
 5. runs a bare ``Pose3`` chain through ISAM2 (``--chain-poses``, nothing from
@@ -305,8 +308,12 @@ def _max_rss_kib() -> int:
     return rss // 1024 if sys.platform == "darwin" else rss  # bytes on macOS, KiB elsewhere
 
 
-def memory_worker(component: str, inputs: Path) -> dict[str, object]:
-    """Run one configuration and report its peak resident-set growth (KiB), as JSON-able dict.
+def component_worker(
+    component: str, inputs: Path, frames_out: Path | None = None
+) -> dict[str, object]:
+    """Run one configuration once in this (fresh) process: its timing and its peak
+    resident-set growth (KiB), as a JSON-able dict; the front end also pickles its
+    measurements to ``frames_out`` (the estimators' input), so nothing runs twice.
 
     A throwaway instance first runs on a few frames, so that lazy imports and one-off
     library initialization (not the component's own cost) happen before the baseline.
@@ -326,26 +333,39 @@ def memory_worker(component: str, inputs: Path) -> dict[str, object]:
         method = "ru_maxrss after - ru_maxrss before"
         before = _max_rss_kib()
     if component == "frontend":
-        run_frontend(data)
+        frames, timing = run_frontend(data)
     else:
-        run_estimator(component, data)
+        timing = run_estimator(component, data)
     after = _status_kib("VmHWM") if method.startswith("VmHWM") else _max_rss_kib()
     assert before is not None and after is not None
-    return {"growth_kib": after - before, "method": method}
+    if frames_out is not None:
+        frames_out.write_bytes(pickle.dumps(frames))
+    return {
+        "growth_kib": after - before,
+        "method": method,
+        "per_frame": timing.per_frame.tolist(),
+        "finish": timing.finish,
+        "cpu": timing.cpu,
+    }
 
 
-def measure_memory(component: str, inputs: Path) -> float | None:
-    """Peak resident-set growth of one configuration in a fresh interpreter, MiB."""
-    command = [sys.executable, str(Path(__file__).resolve()), "--memory-worker", component]
-    result = subprocess.run(
-        [*command, str(inputs)], capture_output=True, text=True, check=False, timeout=3600
-    )
+def timed_in_subprocess(
+    component: str, inputs: Path, frames_out: Path | None = None
+) -> Timing | None:
+    """:func:`component_worker` in a fresh interpreter: the Timing with its peak memory
+    (MiB), or None when the subprocess failed (the reason goes to stderr)."""
+    command = [sys.executable, str(Path(__file__).resolve()), "--worker", component]
+    command += [str(inputs)] + ([str(frames_out)] if frames_out is not None else [])
+    result = subprocess.run(command, capture_output=True, text=True, check=False, timeout=3600)
     if result.returncode != 0:
         tail = result.stderr.strip().splitlines()[-1:] or ["no output"]
-        print(f"[benchmark] memory of {component} failed: {tail[0]}", file=sys.stderr)
+        print(f"[benchmark] {component} (subprocess) failed: {tail[0]}", file=sys.stderr)
         return None
     report = json.loads(result.stdout.strip().splitlines()[-1])
-    return float(report["growth_kib"]) / 1024.0
+    per_frame = np.asarray(report["per_frame"], dtype=float)
+    timing = Timing(component, len(per_frame), per_frame, report["finish"], cpu=report["cpu"])
+    timing.memory_mib = float(report["growth_kib"]) / 1024.0
+    return timing
 
 
 # -- profile ----------------------------------------------------------------------------------
@@ -658,8 +678,9 @@ def performance_markdown(
     ]
     if memory:
         parts.append(
-            "- **peak memory**: growth of the resident set while the component runs, in a fresh "
-            "subprocess per row: VmHWM (/proc/self/status, = `getrusage` ru_maxrss on Linux) "
+            "- **peak memory**: growth of the resident set while the component runs; every row "
+            "runs once, in a fresh subprocess that measures both its time and this: VmHWM "
+            "(/proc/self/status, = `getrusage` ru_maxrss on Linux) "
             "after the run minus VmRSS before it, with the peak reset (/proc/self/clear_refs) "
             "once the inputs are loaded. Includes GTSAM's C++ allocations (tracemalloc sees only "
             "Python's) and the interpreter's own growth."
@@ -711,7 +732,8 @@ def _positive_sizes(sizes: Sequence[int]) -> list[int]:
 
 
 def _fastest(name: str, frames: Sequence[FrameMeasurement], repeat: int) -> Timing:
-    """The fastest of ``repeat`` timed runs (the one least disturbed by other load)."""
+    """The fastest of ``repeat`` timed runs in this process (the one least disturbed by
+    other load)."""
     best = None
     for _ in range(repeat):
         gc.collect()
@@ -720,6 +742,32 @@ def _fastest(name: str, frames: Sequence[FrameMeasurement], repeat: int) -> Timi
             best = timing
     assert best is not None
     return best
+
+
+def _fastest_subprocess(
+    name: str, inputs: Path, repeat: int, frames_out: Path | None = None
+) -> Timing | None:
+    """The fastest of ``repeat`` runs, each in a fresh process with its peak memory."""
+    best = None
+    for _ in range(repeat):
+        timing = timed_in_subprocess(name, inputs, frames_out)
+        if timing is not None and (best is None or timing.total < best.total):
+            best = timing
+    return best
+
+
+def _measure_in_process(
+    scenario: Scenario, components: Sequence[str], repeat: int
+) -> tuple[list[FrameMeasurement], Timing | None]:
+    """The front end in this process: its measurements, and its fastest timing when
+    it is benchmarked."""
+    frames, timing = run_frontend(scenario)
+    if "frontend" not in components:
+        return frames, None
+    for _ in range(repeat - 1):
+        again = run_frontend(scenario)[1]
+        timing = again if again.total < timing.total else timing
+    return frames, timing
 
 
 def run_sizes(
@@ -731,7 +779,12 @@ def run_sizes(
     profile_frames: int,
 ) -> tuple[list[Timing], list[tuple[str, int]], list[FrameMeasurement] | None]:
     """Time every component at every size: (timings, skipped (component, size), the
-    measurements of the profile's size when it is one of the sizes)."""
+    measurements of the profile's size when it is one of the sizes).
+
+    With ``memory``, every run (the front end's too) happens once, in a fresh
+    subprocess that reports both its timing and its peak memory; the front end's
+    subprocess hands its measurements to the estimators' through a file.
+    """
     timings: list[Timing] = []
     skipped: list[tuple[str, int]] = []
     profile_input: list[FrameMeasurement] | None = None
@@ -739,15 +792,23 @@ def run_sizes(
         for n in sizes:
             _progress(f"{n:,} frames: simulating")
             scenario = simulate_frames(n, seed=args.seed, num_points=args.num_points)
+            measurements = Path(tmp) / f"measurements_{n}.pickle"
+            front: Timing | None = None
+            if memory:
+                observations = Path(tmp) / f"observations_{n}.pickle"
+                observations.write_bytes(pickle.dumps(scenario))
+                front = _fastest_subprocess("frontend", observations, args.repeat, measurements)
+            if front is None:  # no memory figures, or the subprocess failed
+                frames, front = _measure_in_process(scenario, components, args.repeat)
+                measurements.write_bytes(pickle.dumps(frames))
+                del frames
             results: list[Timing] = []
-            # The front end always runs once (its measurements feed the estimators).
-            frames, timing = run_frontend(scenario)
-            if "frontend" in components:
-                for _ in range(args.repeat - 1):
-                    again = run_frontend(scenario)[1]
-                    timing = again if again.total < timing.total else timing
-                results.append(timing)
-            _progress(f"{n:,} frames: frontend: {timing.total:.2f} s ({timing.fps:,.0f} frames/s)")
+            if "frontend" in components and front is not None:
+                results.append(front)
+                _progress(
+                    f"{n:,} frames: frontend: {front.total:.2f} s ({front.fps:,.0f} frames/s)"
+                )
+            del scenario  # 100,000 frames of records are not small
             for name in components:
                 if name == "frontend":
                     continue
@@ -755,24 +816,19 @@ def run_sizes(
                     skipped.append((name, n))
                     _progress(f"{n:,} frames: batch skipped (> --batch-max-frames)")
                     continue
-                results.append(_fastest(name, frames, args.repeat))
+                timing = _fastest_subprocess(name, measurements, args.repeat) if memory else None
+                if timing is None:
+                    frames = pickle.loads(measurements.read_bytes())
+                    timing = _fastest(name, frames, args.repeat)
+                    del frames
+                results.append(timing)
                 _progress(
-                    f"{n:,} frames: {name}: {results[-1].total:.2f} s "
-                    f"({results[-1].fps:,.0f} frames/s)"
+                    f"{n:,} frames: {name}: {timing.total:.2f} s ({timing.fps:,.0f} frames/s)"
                 )
-            if memory:
-                observations = Path(tmp) / f"observations_{n}.pickle"
-                measurements = Path(tmp) / f"measurements_{n}.pickle"
-                observations.write_bytes(pickle.dumps(scenario))
-                measurements.write_bytes(pickle.dumps(frames))
-                for timing in results:
-                    _progress(f"{n:,} frames: {timing.component}: memory (subprocess)")
-                    inputs = observations if timing.component == "frontend" else measurements
-                    timing.memory_mib = measure_memory(timing.component, inputs)
             timings += results
             if n == profile_frames:
-                profile_input = frames
-            del frames, scenario  # 30,000 frames of records are not small
+                profile_input = pickle.loads(measurements.read_bytes())
+            measurements.unlink()
 
     return timings, skipped, profile_input
 
@@ -889,7 +945,7 @@ def build_parser() -> argparse.ArgumentParser:
     parser.add_argument("--num-points", type=int, default=4, help="plane points (default 4)")
     parser.add_argument("--out", type=Path, default=Path("docs/performance.md"))
     parser.add_argument(
-        "--memory-worker", nargs=2, metavar=("COMPONENT", "INPUTS"), help=argparse.SUPPRESS
+        "--worker", nargs="+", metavar="COMPONENT INPUTS [FRAMES_OUT]", help=argparse.SUPPRESS
     )
     return parser
 
@@ -898,9 +954,10 @@ def main(argv: Sequence[str] | None = None) -> int:
     """Command line; see the module docstring. Returns the exit code."""
     args = build_parser().parse_args(argv)
 
-    if args.memory_worker is not None:
-        component, inputs = args.memory_worker
-        print(json.dumps(memory_worker(component, Path(inputs))))
+    if args.worker is not None:
+        component, inputs, *frames_out = args.worker
+        out = Path(frames_out[0]) if frames_out else None
+        print(json.dumps(component_worker(component, Path(inputs), out)))
         return 0
 
     started = time.perf_counter()

@@ -1,0 +1,158 @@
+"""Long runs: the default smoother and fixed-lag in bounded memory at a flat cost per frame.
+
+Shorter than the 100,000 frames of docs/performance.md (experiments/benchmark.py)
+but long enough for anything kept per frame to show. Measured without clocks:
+
+- what the solver holds online (ISAM2's variables and factors) is the same in
+  the second half of the run as in the first: the cost of an update does not
+  grow with the length of the sequence;
+- the memory Python allocates per 1,000 frames (``tracemalloc``: every
+  Python object and numpy array) is the same in both halves and small, and
+  the process's resident set (GTSAM's C++ included) grows by no more than a
+  bound per 1,000 frames;
+- the default smoother's final solve, in overlapping chunks, equals the batch
+  optimum (independent reference: ``BatchSmoother``, one Levenberg-Marquardt
+  solve of the whole graph) and is close to the ground truth.
+"""
+
+from __future__ import annotations
+
+import gc
+import tracemalloc
+
+import gtsam
+import numpy as np
+import pytest
+
+from hvo_graph.estimators.factor_store import solve_in_chunks
+from hvo_graph.estimators.smoother import BatchSmoother, FactorGraphSmoother, FixedLagSmoother
+from hvo_graph.estimators.solvers import ONLINE_WINDOW
+from hvo_graph.sim.scenario import body_twist, integrate_poses, paper_scenario
+from hvo_graph.types import FrameMeasurement, PoseMeasurement, VelocityMeasurement
+
+FPS = 30.0
+FRAMES = 5000
+#: Fixed process noise: no maximum-likelihood fit (not what is measured here).
+SIGMA = (0.5, 0.5)
+POSE_SIGMAS = np.array([0.01, 0.01, 0.003, 0.01, 0.01, 0.003])
+TWIST_SIGMAS = np.array([0.1, 0.1, 0.03, 0.2, 0.2, 0.05])
+
+
+def noisy_frames(n: int, seed: int = 3) -> tuple[list[FrameMeasurement], np.ndarray]:
+    """The paper scenario's motion, n frames at 30 fps, measured with Gaussian noise
+    (diagonal covariances); and the true positions (n, 3)."""
+    config = paper_scenario(noisy=False, duration=(n - 1) / FPS)
+    t = np.arange(n) / FPS
+    R, p = integrate_poses(config, t)
+    mid = body_twist(config, t - 0.5 / FPS)
+    rng = np.random.default_rng(seed)
+    pose_noise = rng.normal(size=(n, 6)) * POSE_SIGMAS
+    twist_noise = rng.normal(size=(n, 6)) * TWIST_SIGMAS
+    pose_cov, twist_cov = np.diag(POSE_SIGMAS**2), np.diag(TWIST_SIGMAS**2)
+    frames = []
+    for k in range(n):
+        T = gtsam.Pose3(gtsam.Rot3(R[k]), p[k])
+        if k > 0:
+            T = T.retract(pose_noise[k])
+        pose = PoseMeasurement(T.rotation().matrix(), T.translation(), pose_cov, 0)
+        velocity = None
+        if k > 0:
+            velocity = VelocityMeasurement(
+                mid[k] + twist_noise[k], twist_cov, t[k] - 0.5 / FPS, 1 / FPS
+            )
+        frames.append(FrameMeasurement(k, float(t[k]), pose, velocity, num_points=4))
+    return frames, p
+
+
+def _rss_kib() -> int:
+    with open("/proc/self/status", encoding="ascii") as status:
+        return next(int(line.split()[1]) for line in status if line.startswith("VmRSS:"))
+
+
+def held(smoother: FactorGraphSmoother) -> tuple[int, int]:
+    """(variables, factors) the online solver holds now."""
+    isam = smoother.backend.isam
+    return isam.getLinearizationPoint().size(), isam.getFactorsUnsafe().nrFactors()
+
+
+def stream(smoother: FactorGraphSmoother, frames: list[FrameMeasurement]) -> dict[str, list]:
+    """Feed every frame; at 0, 1/2 and the end: what is held, Python memory, RSS."""
+    marks = {0: "start", len(frames) // 2: "middle", len(frames): "end"}
+    out: dict[str, list] = {"held": [], "python": [], "rss": []}
+    gc.collect()
+    tracemalloc.start()
+    try:
+        for i in range(len(frames) + 1):
+            if i in marks:
+                gc.collect()
+                if i:
+                    out["held"].append(held(smoother))
+                out["python"].append(tracemalloc.get_traced_memory()[0])
+                out["rss"].append(_rss_kib())
+            if i < len(frames):
+                smoother.update(frames[i])
+    finally:
+        tracemalloc.stop()
+    return out
+
+
+@pytest.fixture(scope="module")
+def long_frames() -> tuple[list[FrameMeasurement], np.ndarray]:
+    return noisy_frames(FRAMES)
+
+
+@pytest.mark.parametrize("solver", ["isam2", "fixed-lag"])
+def test_a_long_run_holds_a_bounded_window_in_bounded_memory(solver, long_frames):
+    frames, truth = long_frames
+    make = FactorGraphSmoother if solver == "isam2" else FixedLagSmoother
+    smoother = make(acceleration_sigma=SIGMA)
+    marks = stream(smoother, frames)
+    half = FRAMES // 2
+
+    # The online solver holds a window, not the sequence: the same at the middle and
+    # at the end, and a few window lengths at most (cost of an update: flat).
+    (vars_mid, factors_mid), (vars_end, factors_end) = marks["held"]
+    window = ONLINE_WINDOW if solver == "isam2" else int(1.1 * FPS * smoother.lag) + 2
+    assert vars_end <= vars_mid + 4 and factors_end <= factors_mid + 8
+    assert vars_end <= 2 * (window + 10)
+    # Python's memory per frame: as much in the second half as in the first, and
+    # small (numbers in arrays, not objects per frame: about 0.6 kB per frame).
+    python = np.diff(marks["python"]) / half
+    assert python[1] <= 1.25 * python[0] + 50
+    assert python[1] < 1500
+    # The whole process (GTSAM's C++ too): under 3 MiB per 1,000 frames (a per-frame
+    # GTSAM factor graph alone took ~3.4 kB per frame).
+    rss = np.diff(marks["rss"]) * 1024 / half
+    assert rss[1] < 3000
+
+    smoothed = smoother.trajectory()
+    assert len(smoothed.t) == FRAMES
+    assert np.abs(smoothed.positions - truth).max() < 0.05  # the noise is 1 cm
+
+
+def test_the_chunked_final_solve_is_the_batch_optimum(long_frames):
+    frames = long_frames[0][:900]
+    smoother = FactorGraphSmoother(acceleration_sigma=SIGMA)
+    for frame in frames:
+        smoother.update(frame)
+    batch = BatchSmoother(acceleration_sigma=SIGMA).run(frames)
+    backend = smoother.backend
+    values = gtsam.Values(backend.initial)
+    estimate = backend.isam.calculateBestEstimate()
+    for key in backend.live:
+        values.update(
+            key,
+            estimate.atPose3(key)
+            if gtsam.Symbol(key).chr() == ord("x")
+            else estimate.atVector(key),
+        )
+    moves = solve_in_chunks(backend.store, values, chunk=250, overlap=50)
+    assert len(moves) >= 2 and moves[0] > 1e-5 and moves[-1] <= 1e-9  # it did move, then settled
+    for k in range(0, len(frames), 7):  # no shared reference noise: poses as estimated
+        pose = values.atPose3(gtsam.symbol_shorthand.X(k))
+        assert np.abs(pose.translation() - batch.positions[k]).max() < 1e-6
+        angle = np.linalg.norm(
+            gtsam.Rot3.Logmap(gtsam.Rot3(batch.rotations[k].T @ pose.rotation().matrix()))
+        )
+        assert np.degrees(angle) < 1e-5
+        assert np.abs(values.atVector(gtsam.symbol_shorthand.V(k)) - batch.twists[k]).max() < 1e-6
