@@ -24,8 +24,9 @@ import tracemalloc
 import gtsam
 import numpy as np
 import pytest
+from gtsam.symbol_shorthand import V, X
 
-from hvo_graph.estimators.factor_store import solve_in_chunks
+from hvo_graph.estimators import factor_store
 from hvo_graph.estimators.smoother import BatchSmoother, FactorGraphSmoother, FixedLagSmoother
 from hvo_graph.estimators.solvers import MARGINALIZATION_BLOCKS, ONLINE_WINDOW
 from hvo_graph.sim.scenario import body_twist, integrate_poses, paper_scenario
@@ -135,8 +136,32 @@ def test_a_long_run_holds_a_bounded_window_in_bounded_memory(solver, long_frames
     assert np.abs(smoothed.positions - truth).max() < 0.05  # the noise is 1 cm
 
 
-def test_the_chunked_final_solve_is_the_batch_optimum(long_frames):
+def against_keyframe(frames: list[FrameMeasurement], reference: int, start: int) -> list:
+    """Frames >= start measure their pose against frame ``reference`` (T_rk from the
+    measured poses, same covariance): one factor reaching from every chunk to that frame."""
+    ref = frames[reference].pose
+    T_wr = gtsam.Pose3(gtsam.Rot3(ref.rotation), ref.position)
+    out = list(frames)
+    for k in range(start, len(frames)):
+        pose = frames[k].pose
+        T_rk = T_wr.between(gtsam.Pose3(gtsam.Rot3(pose.rotation), pose.position))
+        moved = PoseMeasurement(
+            T_rk.rotation().matrix(), T_rk.translation(), pose.covariance, reference
+        )
+        out[k] = FrameMeasurement(k, frames[k].t, moved, frames[k].velocity, num_points=4)
+    return out
+
+
+@pytest.mark.parametrize("case", ["chain", "keyframe", "fallback"])
+def test_the_chunked_final_solve_is_the_batch_optimum(case, long_frames, monkeypatch):
+    """Chunks of 250 frames sharing 50. "keyframe": every frame from 100 on is measured
+    against frame 20, which couples every chunk: sweeps settle too slowly, and the whole
+    graph is solved at once; "fallback": the sweeps are cut short, the same."""
     frames = long_frames[0][:900]
+    if case == "keyframe":
+        frames = against_keyframe(frames, 20, 100)
+    if case == "fallback":
+        monkeypatch.setattr(factor_store, "MAX_SWEEPS", 1)
     smoother = FactorGraphSmoother(acceleration_sigma=SIGMA)
     for frame in frames:
         smoother.update(frame)
@@ -145,19 +170,19 @@ def test_the_chunked_final_solve_is_the_batch_optimum(long_frames):
     values = gtsam.Values(backend.initial)
     estimate = backend.isam.calculateBestEstimate()
     for key in backend.live:
-        values.update(
-            key,
-            estimate.atPose3(key)
-            if gtsam.Symbol(key).chr() == ord("x")
-            else estimate.atVector(key),
-        )
-    moves = solve_in_chunks(backend.store, values, chunk=250, overlap=50)
-    assert len(moves) >= 2 and moves[0] > 1e-5 and moves[-1] <= 1e-9  # it did move, then settled
-    for k in range(0, len(frames), 7):  # no shared reference noise: poses as estimated
-        pose = values.atPose3(gtsam.symbol_shorthand.X(k))
+        is_pose = gtsam.Symbol(key).chr() == ord("x")
+        values.update(key, estimate.atPose3(key) if is_pose else estimate.atVector(key))
+    moves = factor_store.solve_in_chunks(backend.store, values, chunk=250, overlap=50)
+    assert moves[0] > 1e-5  # the window's estimates were not the optimum
+    if case == "chain":
+        assert len(moves) >= 2 and moves[-1] <= 1e-9  # it settled
+    elif case == "fallback":
+        assert len(moves) == 2  # one sweep, then the whole graph
+    else:
+        assert 2 < len(moves) < 6  # sweeps that hardly shrink, then the whole graph
+    for k in range(len(frames)):  # no shared reference noise: poses as estimated
+        pose = values.atPose3(X(k))
         assert np.abs(pose.translation() - batch.positions[k]).max() < 1e-6
-        angle = np.linalg.norm(
-            gtsam.Rot3.Logmap(gtsam.Rot3(batch.rotations[k].T @ pose.rotation().matrix()))
-        )
-        assert np.degrees(angle) < 1e-5
-        assert np.abs(values.atVector(gtsam.symbol_shorthand.V(k)) - batch.twists[k]).max() < 1e-6
+        relative = gtsam.Rot3(batch.rotations[k].T @ pose.rotation().matrix())
+        assert np.degrees(np.linalg.norm(gtsam.Rot3.Logmap(relative))) < 1e-5
+        assert np.abs(values.atVector(V(k)) - batch.twists[k]).max() < 1e-6

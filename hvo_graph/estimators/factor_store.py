@@ -55,7 +55,8 @@ CHUNK_OVERLAP: int = 200
 #: A sweep that moves no value (rad, m, rad/s, m/s) by more than this ends the solve.
 CHUNK_TOLERANCE: float = 1e-9
 
-#: Most sweeps (the second one usually moves nothing beyond the tolerance).
+#: Most sweeps before the whole graph is solved at once (the second sweep usually
+#: moves nothing beyond the tolerance).
 MAX_SWEEPS: int = 6
 
 
@@ -136,6 +137,11 @@ class FactorStore:
         self._span.append([places.min(), places.max()])
         self._other.append(factor)
 
+    def longest_span(self) -> int:
+        """The most positions apart two frames of one factor are (1: a chain)."""
+        span = self._span.view()
+        return max(1, int((span[:, 1] - span[:, 0]).max())) if len(span) else 1
+
     def indices(self) -> np.ndarray:
         """(K,) frame index of every position."""
         return self._index.view()[:, 0]
@@ -197,10 +203,18 @@ def solve_in_chunks(
     At most ``chunk`` frames are solved at once by :func:`levenberg_marquardt`, the
     frames just outside held (module docstring). A sequence of at most ``chunk``
     frames is one plain batch solve. Longer ones: a sweep over chunks of ``chunk``
-    frames, consecutive ones sharing ``overlap``; then the seams between chunks
-    (``overlap`` frames either side of each chunk's start) are solved again until
-    none moves by more than ``tolerance`` (a full sweep between two seam sweeps
-    that do move). Returns the largest move of each sweep, in order.
+    frames, consecutive ones sharing ``overlap``; then, when every factor is local
+    (its frames at most ``overlap`` / 2 apart: a chain), the seams between chunks
+    (``overlap`` frames either side of each chunk's start: only there did a frame's
+    neighbours move after it was solved) are solved again until none moves by more
+    than ``tolerance``, with a full sweep between two seam sweeps that do move;
+    otherwise (a keyframe factor reaching far back: its frames moved anywhere) full
+    sweeps until one moves nothing by more than ``tolerance``. Should
+    :data:`MAX_SWEEPS` sweeps not settle, or full sweeps shrink their move by less
+    than half (a keyframe used for thousands of frames couples every chunk), the
+    whole graph is solved at once: the batch optimum always, in bounded memory
+    where the graph is a chain.
+    Returns the largest move of each sweep, in order.
     """
     total = len(store)
     indices = store.indices()
@@ -211,12 +225,20 @@ def solve_in_chunks(
         starts.append(starts[-1] + max(1, chunk - overlap))
     chunks = [(first, min(first + chunk, total)) for first in starts]
     seams = [(first - overlap, min(first + overlap, total)) for first in starts[1:]]
+    if store.longest_span() > overlap // 2:
+        seams = chunks
     moves = [max(_solve_range(store, values, indices, *c, max_iterations) for c in chunks)]
     while len(moves) < MAX_SWEEPS:
         moves.append(max(_solve_range(store, values, indices, *s, max_iterations) for s in seams))
         if moves[-1] <= tolerance:
-            break
-        moves.append(max(_solve_range(store, values, indices, *c, max_iterations) for c in chunks))
+            return moves
+        if seams is chunks and moves[-1] > 0.5 * moves[-2]:
+            break  # sweeps converge slowly here: solve it at once
+        if seams is not chunks:
+            moves.append(
+                max(_solve_range(store, values, indices, *c, max_iterations) for c in chunks)
+            )
+    moves.append(_solve_range(store, values, indices, 0, total, max_iterations))
     return moves
 
 
