@@ -295,7 +295,14 @@ def error_covariances(
         N_hi + N - X - np.swapaxes(X, 1, 2), N0_hi + N0 - X0 - X0_t, anchor_adjoint
     ) + shared_step @ np.swapaxes(shared_step, 1, 2)
     square = _window_mean(np.einsum("ki,kj->kij", step, step), system.times, bias_window)
-    covariance += _excess(square, noise, BIAS_NOISE_MARGIN)
+    excess = _excess(square, noise, BIAS_NOISE_MARGIN)
+    if anchor_adjoint is not None:
+        # Frame 0's pose is its own reference: no error for a bias to add to, and its
+        # noise there is zero up to rounding, which _excess would amplify into the
+        # twist too (a 1e-11 change of the estimate moved its twist variance 1e10-fold).
+        excess[0] = 0.0
+        excess[0, 6:, 6:] = _excess(square[:1, 6:, 6:], noise[:1, 6:, 6:], BIAS_NOISE_MARGIN)[0]
+    covariance += excess
     return _symmetric(covariance)
 
 
