@@ -1,4 +1,4 @@
-"""Long runs: the default smoother and fixed-lag in bounded memory at a flat cost per frame.
+"""Long runs: smoother, fixed-lag and tight graph in bounded memory, at a flat cost per frame.
 
 Shorter than the 100,000 frames of docs/performance.md (experiments/benchmark.py)
 but long enough for anything kept per frame to show. Measured without clocks:
@@ -186,3 +186,25 @@ def test_the_chunked_final_solve_is_the_batch_optimum(case, long_frames, monkeyp
         relative = gtsam.Rot3(batch.rotations[k].T @ pose.rotation().matrix())
         assert np.degrees(np.linalg.norm(gtsam.Rot3.Logmap(relative))) < 1e-5
         assert np.abs(values.atVector(V(k)) - batch.twists[k]).max() < 1e-6
+
+
+def test_the_tight_graph_holds_a_bounded_window_online():
+    # Every landmark stays in view for the whole run, so without the window rebuild the
+    # online ISAM2 would hold every frame's X, V (1,200 of them over 600 frames).
+    from hvo_graph.estimators.tight import TightSmoother
+    from hvo_graph.pipeline import measure
+    from hvo_graph.sim.scenario import simulate
+
+    scenario = simulate(paper_scenario(duration=20.0))  # 601 frames, 4 points
+    tight = TightSmoother(acceleration_sigma=SIGMA)
+    held_sizes = []
+    for frame in measure(scenario.observations, scenario, method="tight"):
+        tight.update(frame)
+        held_sizes.append(tight.backend.isam.getLinearizationPoint().size())
+    window = tight.backend.window
+    bound = 2 * (2 * window + 1) + 4  # X, V of at most 2 windows, and the 4 landmarks
+    assert max(held_sizes) <= bound
+    assert max(held_sizes[300:]) == max(held_sizes[:300])
+    estimate = tight.trajectory()
+    error = np.linalg.norm(estimate.positions - scenario.groundtruth.positions, axis=1)
+    assert np.sqrt(np.mean(error[30:] ** 2)) < 0.02
