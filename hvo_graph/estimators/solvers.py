@@ -15,13 +15,10 @@ which owns the solver's state:
   ``IncrementalFixedLagSmoother`` with a window of ``lag`` seconds; a frame's
   final value is its value as it left the window (or its current value).
 
-Speed note: the custom factors are Python callbacks that GTSAM hands the
-solver's ``Values``. pybind11 copies a C++ ``Values`` into Python on every call
-unless a Python object already wraps that instance, which would make every
-frame O(number of frames). The ISAM2 back ends therefore keep a Python reference
-to ISAM2's linearization point (``getLinearizationPoint()``), and the batch back
-end runs its own Levenberg-Marquardt loop on Python-owned ``Values`` (GTSAM's
-optimizer would copy the whole ``Values`` per factor: O(N^2)).
+Speed note: pybind11 copies a C++ ``Values`` into every Python factor callback
+unless a Python object already wraps it (O(frames) per call). The ISAM2 back ends
+keep a reference to ISAM2's linearization point, and the batch back end runs its
+own Levenberg-Marquardt loop on Python-owned ``Values`` (GTSAM's would be O(N^2)).
 """
 
 from __future__ import annotations
@@ -44,10 +41,8 @@ from hvo_graph.estimators.factor_store import (
 from hvo_graph.estimators.least_squares import levenberg_marquardt
 
 #: The fixed-lag smoother marginalizes in blocks of lag / MARGINALIZATION_BLOCKS
-#: seconds (frame timestamps are rounded down to the block), so its window holds
-#: between lag and 1.1 lag seconds. Marginalizing at every frame made GTSAM's
-#: update about three times as costly (IncrementalFixedLagSmoother re-orders and
-#: re-eliminates the window at each marginalization).
+#: seconds (timestamps rounded down to the block): a window of lag to 1.1 lag seconds.
+#: Marginalizing at every frame made GTSAM's update about three times as costly.
 MARGINALIZATION_BLOCKS: int = 10
 
 #: Frames the default smoother ("isam2") keeps in its online window before
@@ -217,9 +212,13 @@ class FixedLagBackend(IncrementalBackend):
     ) -> None:
         stamp = self.stamp(stamp_time)
         self._freeze_leaving(stamp)
-        self.smoother.update(graph, values, {X(index): stamp, V(index): stamp})
+        self.smoother.update(graph, values, self._stamps(graph, index, stamp))
         self.window.append((index, stamp))
         self._collect_frozen()
+
+    def _stamps(self, graph: gtsam.NonlinearFactorGraph, index: int, t: float) -> dict:
+        """The keys the new factors keep in the window, with their timestamp."""
+        return {X(index): t, V(index): t}
 
     def _freeze_leaving(self, stamp: float) -> None:
         """Record the current estimate of every frame the coming update will marginalize.

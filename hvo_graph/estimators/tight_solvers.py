@@ -41,23 +41,15 @@ class LandmarkFixedLagBackend(FixedLagBackend):
     """The fixed-lag back end, with every landmark a factor touches stamped with the frame
     (a landmark stays in the window while it is observed)."""
 
-    def _update(
-        self,
-        graph: gtsam.NonlinearFactorGraph,
-        values: gtsam.Values,
-        index: int,
-        stamp_time: float,
-    ) -> None:
-        stamp = self.stamp(stamp_time)
-        self._freeze_leaving(stamp)
-        stamps = {X(index): stamp, V(index): stamp}
+    def _stamps(
+        self, graph: gtsam.NonlinearFactorGraph, index: int, stamp: float
+    ) -> dict[int, float]:
+        stamps = super()._stamps(graph, index, stamp)
         for i in range(graph.size()):
             for key in graph.at(i).keys():
                 if gtsam.Symbol(key).chr() == _LANDMARK:
                     stamps[key] = stamp
-        self.smoother.update(graph, values, stamps)
-        self.window.append((index, stamp))
-        self._collect_frozen()
+        return stamps
 
 
 class WindowIsam2Backend(BatchBackend):
