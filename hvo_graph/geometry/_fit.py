@@ -21,7 +21,7 @@ import gtsam
 import numpy as np
 
 from hvo_graph.errors import InputError
-from hvo_graph.geometry.discrete import _dlt
+from hvo_graph.geometry.discrete import _dlt, _euclidean
 from hvo_graph.types import Plane
 
 # Rows, columns, source coordinate and sign of the six non-zero entries of X^ (skew(X)).
@@ -222,19 +222,7 @@ def known_normal_motion(
 def euclidean(H: np.ndarray, m_ref: np.ndarray, m_cur: np.ndarray) -> np.ndarray:
     """:func:`~hvo_graph.geometry.discrete.euclidean_homography` without the argument
     checks (the points are the front end's (N, 3) arrays)."""
-    s = np.linalg.svd(H, compute_uv=False)
-    if not s[1] > 1e-12 * max(s[0], np.finfo(float).tiny):
-        raise InputError("H: rank < 2, not a homography between two views of a plane")
-    H = H / s[1]
-    g = np.einsum("ij,jk,ik->i", m_cur, H, m_ref)
-    if np.all(g < 0):
-        H, g = -H, -g
-    if not np.all(g > 0):
-        raise InputError(
-            "m_ref, m_cur: points behind the camera: m^T H m* changes sign between points "
-            "(not a valid homography for points in front of both cameras)"
-        )
-    return H
+    return _euclidean(H, m_ref, m_cur)
 
 
 def dlt(m_ref: np.ndarray, m_cur: np.ndarray) -> np.ndarray:

@@ -254,11 +254,16 @@ def euclidean_homography(H: np.ndarray, m_ref: np.ndarray, m_cur: np.ndarray) ->
     """
     H = as_matrix(H, "H", (3, 3))
     a, b = _pair(m_ref, m_cur, 1)
+    return _euclidean(H, a, b)
+
+
+def _euclidean(H: np.ndarray, m_ref: np.ndarray, m_cur: np.ndarray) -> np.ndarray:
+    """:func:`euclidean_homography` on checked inputs (H (3, 3), points (N, 3))."""
     s = np.linalg.svd(H, compute_uv=False)
     if not s[1] > 1e-12 * max(s[0], np.finfo(float).tiny):
         raise InputError("H: rank < 2, not a homography between two views of a plane")
     H = H / s[1]
-    g = np.einsum("ij,jk,ik->i", b, H, a)
+    g = np.einsum("ij,jk,ik->i", m_cur, H, m_ref)
     if np.all(g < 0):
         H, g = -H, -g
     if not np.all(g > 0):
