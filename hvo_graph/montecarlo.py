@@ -24,6 +24,8 @@ import numpy as np
 
 from hvo_graph.errors import InputError, as_number
 from hvo_graph.estimators.base import Estimator
+from hvo_graph.estimators.noise_estimation import estimate_process_noise
+from hvo_graph.estimators.process_noise import DEFAULT_ACCELERATION_SIGMA
 from hvo_graph.estimators.registry import (
     METHOD_LABELS,
     EstimatorOptions,
@@ -31,6 +33,7 @@ from hvo_graph.estimators.registry import (
     check_methods,
     method,
 )
+from hvo_graph.eval.bounds import BOUND, posterior_bound
 from hvo_graph.eval.consistency import trajectory_nees
 from hvo_graph.eval.metrics import QUANTITIES, ErrorSeries, ErrorSummary, error_series, summarize
 from hvo_graph.eval.stats import MeanCI, mean_ci
@@ -48,7 +51,6 @@ from hvo_graph.types import FrameMeasurement, Trajectory
 
 #: Window of the fixed-lag smoother in the experiments, seconds.
 FIXED_LAG_SECONDS = 1.0
-
 _NAMES = tuple(q.name for q in QUANTITIES)
 
 
@@ -102,6 +104,11 @@ class MethodRuns:
         estimator, final = self._runs[source.name]
         return estimator.online_trajectory() if record.online_of else final
 
+    def estimator(self, label: str) -> Estimator | None:
+        """The estimator that ran method ``label`` (None if it has not run)."""
+        run = self._runs.get(label)
+        return None if run is None else run[0]
+
 
 @dataclass
 class SeedResult:
@@ -144,6 +151,7 @@ def run_seed(
     *,
     skip: float = 1.0,
     keep_series: bool = True,
+    bound: bool = False,
 ) -> SeedResult:
     """Simulate ``config`` once and run every method on it.
 
@@ -154,6 +162,8 @@ def run_seed(
             after the estimators' start-up transient (the Kalman filter starts
             from a random state).
         keep_series: also return the per-frame errors.
+        bound: also the pose's posterior Cramér-Rao bound, under :data:`BOUND`
+            (:func:`bound_summary`).
     Raises:
         InputError: bad methods or skip, or an estimator's InputError with the
             seed and method prepended.
@@ -164,7 +174,7 @@ def run_seed(
         raise InputError(f"config: expected a ScenarioConfig, got {type(config).__name__}")
     skip = _checked_skip(skip, config.duration)
     result = SeedResult(seed=config.seed, config=config, summaries={}, skip=float(skip))
-    return _evaluate(simulate(config), result, methods, keep_series, covariance=False)
+    return _evaluate(simulate(config), result, methods, keep_series, covariance=False, bound=bound)
 
 
 @dataclass(frozen=True)
@@ -183,6 +193,7 @@ def run_family_seed(
     *,
     skip: float = 1.0,
     keep_series: bool = False,
+    bound: bool = False,
 ) -> SeedResult:
     """Draw ``job`` (:func:`hvo_graph.sim.families.draw`) and run every method on it, with
     the smoothers' covariances and their NEES (``SeedResult.nees``); as :func:`run_seed`."""
@@ -193,7 +204,7 @@ def run_family_seed(
     result = SeedResult(
         seed=job.seed, config=config, summaries={}, skip=float(skip), family=job.family
     )
-    return _evaluate(drawn.scenario, result, methods, keep_series, covariance=True)
+    return _evaluate(drawn.scenario, result, methods, keep_series, covariance=True, bound=bound)
 
 
 def _evaluate(
@@ -203,8 +214,10 @@ def _evaluate(
     keep_series: bool,
     *,
     covariance: bool,
+    bound: bool = False,
 ) -> SeedResult:
-    """Fill ``result`` with every method's errors (and NEES where covariances exist)."""
+    """Fill ``result`` with every method's errors (and NEES where covariances exist), and
+    the bound if asked, with the process noise the smoother chose on these data."""
     truth = scenario.groundtruth
     t_start = float(truth.t[0]) + result.skip
     runs = MethodRuns(
@@ -230,16 +243,49 @@ def _evaluate(
             ) from exc
         if keep_series:
             result.series[label] = series
+    if bound:
+        smoother = runs.estimator("smoother")
+        if smoother is not None:
+            sigma = smoother.acceleration_sigma  # type: ignore[attr-defined]
+        else:
+            fit = estimate_process_noise(
+                runs.frames("homography"), default=DEFAULT_ACCELERATION_SIGMA
+            )
+            sigma = fit.acceleration_sigma
+        result.summaries[BOUND] = bound_summary(scenario, sigma, t_start)
     return result
 
 
+def bound_summary(
+    scenario: Scenario, acceleration_sigma: tuple[float, float], t_start: float
+) -> ErrorSummary:
+    """The pose's posterior Cramér-Rao bound (:func:`~hvo_graph.eval.bounds.posterior_bound`)
+    as an error summary over the frames an estimator is evaluated on: the observed frames
+    with t >= ``t_start``. RMSE = sqrt(mean of the bound's traces), max = the largest
+    per-frame bound; velocity entries None."""
+    pose_bound = posterior_bound(scenario, acceleration_sigma)
+    observed = np.array([int(o.index) for o in scenario.observations])
+    keep = observed[pose_bound.t[observed] >= t_start]
+    position, orientation = pose_bound.position[keep], pose_bound.orientation[keep]
+    return ErrorSummary(
+        position_rmse=float(np.sqrt(np.mean(position**2))),
+        position_max=float(position.max()),
+        orientation_rmse=float(np.sqrt(np.mean(orientation**2))),
+        orientation_max=float(orientation.max()),
+        linear_velocity_rmse=None,
+        linear_velocity_max=None,
+        angular_velocity_rmse=None,
+        angular_velocity_max=None,
+        frames=int(keep.size),
+    )
+
+
 def _run_seed_job(
-    job: tuple[ScenarioConfig | FamilySeed, tuple[str, ...], float, bool],
+    job: tuple[ScenarioConfig | FamilySeed, tuple[str, ...], float, bool, bool],
 ) -> SeedResult:
-    config, methods, skip, keep_series = job
-    if isinstance(config, FamilySeed):
-        return run_family_seed(config, methods, skip=skip, keep_series=keep_series)
-    return run_seed(config, methods, skip=skip, keep_series=keep_series)
+    config, methods, skip, keep_series, bound = job
+    run = run_family_seed if isinstance(config, FamilySeed) else run_seed
+    return run(config, methods, skip=skip, keep_series=keep_series, bound=bound)  # type: ignore[arg-type]
 
 
 def _cost(config: ScenarioConfig | FamilySeed) -> float:
@@ -257,6 +303,7 @@ def run_seeds(
     progress: bool = True,
     label: str = "seeds",
     scheduler: str | None = None,
+    bound: bool = False,
 ) -> list[SeedResult]:
     """:func:`run_seed` for every config, over ``workers`` processes or a Dask cluster;
     results in input order, and the same numbers wherever they ran (each run is a
@@ -275,6 +322,7 @@ def run_seeds(
         label: what the progress bar counts.
         scheduler: address of a running Dask scheduler (``tcp://HOST:PORT``): the seeds
             run on its workers (:func:`hvo_graph.parallel.executor`).
+        bound: also each seed's posterior Cramér-Rao bound of the pose (:data:`BOUND`).
     Raises:
         InputError: bad arguments, or no scheduler at ``scheduler``; a seed's failure
             (naming the seed and method) stops the run.
@@ -285,7 +333,7 @@ def run_seeds(
     configs = list(configs)
     if not configs:
         raise InputError("configs: expected at least one scenario")
-    jobs = [(config, methods, skip, keep_series) for config in configs]
+    jobs = [(config, methods, skip, keep_series, bound) for config in configs]
     results: list[SeedResult | None] = [None] * len(jobs)
     with ProgressBar(len(jobs), label=label, enabled=progress) as bar:
         if scheduler is None and (workers == 1 or len(jobs) == 1):

@@ -155,3 +155,26 @@ def test_the_motion_model_s_bias_on_a_weakly_measured_pose_axis_is_counted() -> 
                 nees[with_bias].append(e @ np.linalg.solve(C[k, :6, :6], e) / 6)
     assert np.mean(nees[False]) > 2.0
     assert 0.6 < np.mean(nees[True]) < 1.4
+
+
+def test_a_near_static_sequence_with_a_numerically_noiseless_direction_gets_covariances() -> None:
+    """A near-hover draw (4 s) once made the bias probe's noise metric divide by 1e-150
+    (a -1e-20 variance at the reference pose) and numpy's eigh fail; the fixed-lag run
+    must give finite, symmetric, positive semi-definite covariances that are not
+    overconfident."""
+    from hvo_graph.eval.consistency import trajectory_nees
+    from hvo_graph.montecarlo import make_method
+    from hvo_graph.pipeline import measure
+    from hvo_graph.sim.families import draw
+
+    scenario = draw("hover", 0, duration=4.0).scenario
+    frames = measure(scenario.observations, scenario, method="smoother")
+    trajectory = make_method("fixed-lag", 0, covariance=True).run(frames)
+    C = np.asarray(trajectory.covariances)
+    assert np.isfinite(C).all()
+    np.testing.assert_allclose(C, np.swapaxes(C, 1, 2), atol=1e-12)
+    assert np.linalg.eigvalsh(C).min() > -1e-12
+    pose_nees, twist_nees = trajectory_nees(
+        trajectory, scenario.groundtruth, t_start=float(scenario.groundtruth.t[0]) + 1.0
+    )
+    assert pose_nees < 3.0 and twist_nees < 3.0

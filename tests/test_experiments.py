@@ -16,6 +16,7 @@ from script_helpers import load_script, png_size
 
 from hvo_graph.errors import InputError
 from hvo_graph.estimators.registry import METHOD_LABELS, METHOD_TITLES
+from hvo_graph.eval.bounds import BOUND, BOUND_TITLE, posterior_bound
 from hvo_graph.eval.metrics import error_series, summarize
 from hvo_graph.montecarlo import run_seed, run_seeds
 from hvo_graph.pipeline import estimate
@@ -48,6 +49,16 @@ def table_rows(markdown: str, heading: str) -> list[list[str]]:
     return [[c.strip() for c in ln.strip("|").split("|")] for ln in lines[2:]]
 
 
+def estimate_smoother(scenario):
+    """The default smoother run on a scenario, as the experiments run it."""
+    from hvo_graph.estimators.smoother import FactorGraphSmoother
+    from hvo_graph.pipeline import measure
+
+    smoother = FactorGraphSmoother()
+    smoother.run(measure(scenario.observations, scenario, method="smoother"))
+    return smoother
+
+
 def mean_and_half(values: list[float]) -> tuple[float, float]:
     """Hand computation for two seeds: mean and t_{0.975,1} s / sqrt(2)."""
     a, b = values
@@ -70,20 +81,24 @@ def test_compare_writes_tables_csv_and_figures(compare_run) -> None:
     assert "- Command: `python experiments/compare.py --seeds 2 --duration 1.5" in page
     assert "- Seeds: 0-1 (2 seeds)" in page
     rmse_rows = table_rows(page, "### RMSE: mean over 2 seeds")
-    assert [r[0] for r in rmse_rows] == [f"{METHOD_TITLES[m]} (`{m}`)" for m in METHOD_LABELS]
+    assert [r[0] for r in rmse_rows] == [
+        *(f"{METHOD_TITLES[m]} (`{m}`)" for m in METHOD_LABELS),
+        BOUND_TITLE,
+    ]
+    assert rmse_rows[-1][3:] == ["-", "-"]  # the bound is of the pose alone
     ratio_rows = table_rows(page, "### RMSE ratios")
     assert [r[0] for r in ratio_rows] == [
         f"{METHOD_TITLES[a]} / {METHOD_TITLES[b]}" for a, b in compare.RATIOS
     ]
-    assert "target" not in page.lower() and "bound" not in page.lower()  # no internal plans
+    assert "target" not in page.lower() and "issue" not in page.lower()  # no internal plans
     # the tables printed are the ones written
     assert stdout.split("### RMSE: mean", 1)[1] in page
 
     with open(out / "results.csv", newline="") as f:
         rows = list(csv.DictReader(f))
-    assert len(rows) == 2 * len(METHOD_LABELS)
+    assert len(rows) == 2 * (len(METHOD_LABELS) + 1)
     assert [(int(r["seed"]), r["method"]) for r in rows] == [
-        (s, m) for s in (0, 1) for m in METHOD_LABELS
+        (s, m) for s in (0, 1) for m in (*METHOD_LABELS, BOUND)
     ]
     by = {(int(r["seed"]), r["method"]): r for r in rows}
     # 1.5 s at 30 fps = 46 frames; errors over t >= 1 s: frames 30..45
@@ -106,6 +121,23 @@ def test_compare_writes_tables_csv_and_figures(compare_run) -> None:
         for s in (0, 1)
     ]
     shown = cell.split(" ± ")[0]
+    assert abs(float(shown) - np.mean(ratios)) <= 0.5 * 10.0 ** -len(shown.split(".")[1])
+    # each seed's bound is the posterior bound computed here, with the process noise the
+    # smoother chose on that seed, over the same frames
+    for s in (0, 1):
+        scenario = simulate(paper_scenario(seed=s, duration=1.5))
+        smoother = estimate_smoother(scenario)
+        bound = posterior_bound(scenario, smoother.acceleration_sigma)
+        keep = bound.t >= 1.0
+        want = np.sqrt(np.mean(bound.position[keep] ** 2))
+        assert float(by[(s, BOUND)]["position_rmse_m"]) == pytest.approx(want, rel=1e-9)
+    bound_rows = table_rows(page, "### RMSE / posterior")
+    assert [r[0] for r in bound_rows] == [f"{METHOD_TITLES[m]} (`{m}`)" for m in METHOD_LABELS]
+    shown = bound_rows[METHOD_LABELS.index("smoother")][1].split(" ± ")[0]
+    ratios = [
+        float(by[(s, "smoother")]["position_rmse_m"]) / float(by[(s, BOUND)]["position_rmse_m"])
+        for s in (0, 1)
+    ]
     assert abs(float(shown) - np.mean(ratios)) <= 0.5 * 10.0 ** -len(shown.split(".")[1])
 
     assert_figure(out / "figures" / "compare_error_over_time", compare.ERROR_FIGSIZE)
@@ -166,7 +198,7 @@ def test_sweep_writes_csv_tables_and_figures(tmp_path, monkeypatch, capsys) -> N
     printed = capsys.readouterr().out
     with open(tmp_path / "sweep.csv", newline="") as f:
         rows = list(csv.DictReader(f))
-    methods = list(sweep.DEFAULT_METHODS)
+    methods = [*sweep.DEFAULT_METHODS, BOUND]
     assert [(r["sweep"], float(r["value"]), r["method"]) for r in rows] == [
         (name, float(v), m) for name, s in small.items() for v in s.values for m in methods
     ]
@@ -176,6 +208,11 @@ def test_sweep_writes_csv_tables_and_figures(tmp_path, monkeypatch, capsys) -> N
     for m in ("smoother", "ippe"):
         assert float(noise[(0.0, m)]["position_rmse_m_mean"]) < 1e-4
         assert float(noise[(0.5, m)]["position_rmse_m_mean"]) > 1e-3
+    # the bound grows with the pixel noise and has no velocity
+    assert float(noise[(0.5, BOUND)]["position_rmse_m_mean"]) > 100 * float(
+        noise[(0.0, BOUND)]["position_rmse_m_mean"]
+    )
+    assert noise[(0.5, BOUND)]["linear_velocity_rmse_mps_mean"] == ""
     # The fps sweep really changes the frame rate: the same seed at 30 fps equals compare's run.
     direct = run_seed(paper_scenario(seed=0, duration=1.5, fps=30.0), ["kalman"], keep_series=False)
     other = run_seed(paper_scenario(seed=1, duration=1.5, fps=30.0), ["kalman"], keep_series=False)
@@ -248,7 +285,7 @@ def test_markdown_table_and_method_styles() -> None:
     with pytest.raises(InputError, match="every row needs one cell per header column"):
         markdown_table(["a", "b"], [["x"]])
     # one distinct colour-and-line-style per method, a legend text for each
-    assert set(METHOD_STYLE) == set(METHOD_LABELS)
+    assert set(METHOD_STYLE) == {*METHOD_LABELS, BOUND}  # and the bound's row
     looks = {(s["color"], s["linestyle"]) for s in METHOD_STYLE.values()}
-    assert len(looks) == len(METHOD_LABELS)
+    assert len(looks) == len(METHOD_LABELS) + 1
     assert all(re.fullmatch(r"#[0-9A-F]{6}", str(s["color"])) for s in METHOD_STYLE.values())

@@ -224,7 +224,11 @@ def _excess(square: np.ndarray, noise: np.ndarray, margin: float) -> np.ndarray:
     ``square`` beyond ``margin`` times ``noise``, direction by direction in the noise's
     own metric (units of rotation and translation do not mix)."""
     n = noise.shape[-1]
-    scale = np.sqrt(np.clip(np.diagonal(noise, axis1=1, axis2=2), 1e-300, None))
+    diagonal = np.diagonal(noise, axis1=1, axis2=2)
+    # A floor relative to each frame's largest variance: a direction with (numerically)
+    # no noise, e.g. a reference pose's -1e-20, would otherwise scale its row by 1e150.
+    floor = 1e-12 * diagonal.max(axis=1, keepdims=True) + 1e-300
+    scale = np.sqrt(np.maximum(diagonal, floor))
     D = scale[:, :, None] * scale[:, None, :]
     w, v = np.linalg.eigh(_symmetric(noise / D) + 1e-9 * np.eye(n))
     root = v * np.sqrt(np.clip(w, 1e-12, None))[:, None, :] * scale[:, :, None]  # L = D^1/2 V W^1/2

@@ -36,7 +36,20 @@ from hvo_graph.estimators.process_noise import acceleration_sigma as check_accel
 from hvo_graph.estimators.tight import DEFAULT_PLANE_SIGMA, IN_PLANE_SIGMA
 from hvo_graph.sim.scenario import Scenario
 
-__all__ = ["MIN_PIXEL_SIGMA", "PoseBound", "bound_ratio", "memoryless_bound", "posterior_bound"]
+__all__ = [
+    "BOUND",
+    "BOUND_TITLE",
+    "MIN_PIXEL_SIGMA",
+    "PoseBound",
+    "bound_ratio",
+    "memoryless_bound",
+    "posterior_bound",
+]
+
+#: The row of the posterior bound in result tables (beside the methods' labels) and its
+#: title there.
+BOUND = "posterior-bound"
+BOUND_TITLE = "posterior Cramér-Rao bound"
 
 #: Pixel sigma (px) used for a noise-free scenario (a zero sigma has no finite bound).
 MIN_PIXEL_SIGMA = 1e-3
@@ -92,13 +105,21 @@ def _frame_factors(
     graph: gtsam.NonlinearFactorGraph,
     values: gtsam.Values,
 ) -> None:
-    """Poses X(k) at the truth, the true points L(j) on the plane, the projection factors."""
+    """Poses X(k) at the truth, the true points L(j) on the plane, the projection factors.
+
+    Only frames the scenario observed have pixels (a dropped frame keeps its pose, tied
+    to its neighbours by the motion prior alone), and only plane points (off-plane
+    tracks added to ``observations`` are not in ``clean_observations``).
+    """
     noise = gtsam.noiseModel.Isotropic.Sigma(2, _sigma(scenario))
     plane = _plane_noise(np.asarray(scenario.plane.normal, dtype=float))
+    observed = {int(o.index) for o in scenario.observations}
     seen: set[int] = set()
     for k in frames:
         pose = _pose(scenario, k)
         values.insert(X(k), pose)
+        if k not in observed:
+            continue
         obs = scenario.clean_observations[k]
         R, p = pose.rotation().matrix(), np.asarray(pose.translation())
         for track in np.asarray(obs.ids).tolist():
@@ -161,9 +182,14 @@ def posterior_bound(scenario: Scenario, acceleration_sigma: float | Sequence[flo
 
 
 def memoryless_bound(scenario: Scenario) -> PoseBound:
-    """The bound of a per-frame estimator: the pose of frame k from frames 0 and k alone."""
+    """The bound of a per-frame estimator: the pose of frame k from frames 0 and k alone
+    (NaN at frames the scenario did not observe)."""
     covariances = [np.zeros((6, 6))]
+    observed = {int(o.index) for o in scenario.observations}
     for k in range(1, len(scenario.groundtruth.t)):
+        if k not in observed:
+            covariances.append(np.full((6, 6), np.nan))
+            continue
         graph = gtsam.NonlinearFactorGraph()
         values = gtsam.Values()
         _frame_factors(scenario, [0, k], graph, values)

@@ -23,6 +23,7 @@ from matplotlib.ticker import FuncFormatter
 
 from hvo_graph.errors import InputError
 from hvo_graph.estimators.registry import METHODS
+from hvo_graph.eval.bounds import BOUND, BOUND_TITLE
 
 #: Resolution of the PNG files, dots per inch.
 FIGURE_DPI = 150
@@ -32,7 +33,7 @@ FIGURE_DPI = 150
 #: color, linestyle, marker, label.
 METHOD_STYLE: dict[str, dict[str, object]] = {
     m.name: {**m.style, "label": m.title} for m in METHODS
-}
+} | {BOUND: {"color": "#000000", "linestyle": ":", "marker": "_", "label": BOUND_TITLE}}
 
 #: Ground truth in time plots: dashed black.
 TRUTH_STYLE: dict[str, object] = {
