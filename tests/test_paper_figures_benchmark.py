@@ -248,3 +248,13 @@ def test_factor_graph_figure_draws_every_factor_kind(tmp_path, capsys):
         assert label.split(" (")[0].split(":")[0] in text
     for name in ("X(0)", "X(4)", "V(0)", "V(4)"):
         assert name in text
+    # the tightly coupled graph: its own factor kinds, a landmark per track, no H_d / H_c
+    png, svg = tmp_path / "factor_graph_tight.png", tmp_path / "factor_graph_tight.svg"
+    assert png_size(png) == (1500, 960)
+    text = svg.read_text()
+    ET.fromstring(text)
+    for label, _ in factor_graph_figure.TIGHT_FACTORS.values():
+        assert label.split(" (")[0].split(":")[0] in text
+    for j in range(len(factor_graph_figure.TIGHT_TRACKS)):
+        assert f"L({j})" in text
+    assert "H_d" not in text and "H_c" not in text
