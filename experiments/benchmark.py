@@ -35,7 +35,11 @@ run is just a longer duration) this script
 7. runs ``hvo-graph estimate`` end to end (``--cli-frames``, default 30,000 frames)
    for the default smoother, the fixed-lag smoother and the Kalman filter, each in
    a fresh process on a tracks CSV written as ``hvo-graph simulate`` writes it:
-   wall and CPU time and the process's peak memory.
+   wall and CPU time and the process's peak memory;
+8. times the images path on rendered 640 x 480 PNG files (``--image-frames``,
+   default 450) beside a bare OpenCV loop (decode, detection, KLT) on the same
+   files, and ``hvo-graph estimate --images`` end to end
+   (experiments/benchmark_images.py).
 
 Columns: overall frames per second = frames / (all updates + ``trajectory()``);
 the CPU time of the run (``time.process_time``, steadier than wall time when
@@ -971,6 +975,24 @@ def reference_sections(args: argparse.Namespace) -> list[tuple[str, str]]:
             ]
         )
         sections.append(("End to end", text))
+    images = args.image_frames
+    images = (60 if args.quick else 450) if images is None else images
+    if images:
+        _progress(f"images: {images:,} rendered 640 x 480 frames")
+        stages = _sibling("benchmark_images")
+        text = "\n\n".join(
+            [
+                f"{images:,} rendered 640 x 480 frames of the paper's plane and motion, as PNG "
+                "files in a folder (experiments/benchmark_images.py): a bare OpenCV loop "
+                "(decode, `goodFeaturesToTrack` with 200 corners, one `calcOpticalFlowPyrLK` "
+                "per frame, nothing else), hvo_graph's tracking of the same files (the same "
+                "calls plus the forward-backward check, gates, re-identification and keyframe "
+                "re-alignment), and `hvo-graph estimate --images` end to end in a fresh "
+                "process (its start-up, about a second, included).",
+                stages.images_section(stages.image_stages(images, args.seed)),
+            ]
+        )
+        sections.append(("Images, 640 x 480", text))
     return sections
 
 
@@ -1016,6 +1038,11 @@ def build_parser() -> argparse.ArgumentParser:
         type=int,
         help="frames of the end-to-end hvo-graph estimate runs (default 30,000, --quick "
         "300, 0 none)",
+    )
+    parser.add_argument(
+        "--image-frames",
+        type=int,
+        help="rendered 640 x 480 frames of the images path (default 450, --quick 60, 0 none)",
     )
     parser.add_argument("--repeat", type=int, default=1, help="keep the fastest of N timed runs")
     parser.add_argument("--seed", type=int, default=0, help="pixel-noise seed")

@@ -174,6 +174,19 @@ def test_benchmark_quick_writes_the_table_machine_and_profile(tmp_path, capsys):
     ]
     for r in cli:  # a failed run would say "failed (exit code)" in the wall-time column
         assert number(r[1]) == 300 and number(r[2]) > 0 and number(r[5]) > 0
+    # The images path on 60 rendered frames, beside the bare OpenCV loop.
+    images = section_rows(page, "## Images, 640 x 480")
+    assert [r[0] for r in images] == [
+        "bare OpenCV loop (decode, detect, KLT)",
+        "tracking (`tracks_from_images`)",
+        "`hvo-graph estimate --images --method measurements`",
+        "`hvo-graph estimate --images --method smoother`",
+    ]
+    bare = number(images[0][2])
+    for r in images:
+        assert number(r[1]) == 60 and number(r[2]) > 0
+        assert number(r[4]) == pytest.approx(60 / number(r[2]), rel=0.05, abs=1.0)
+        assert number(r[5]) == pytest.approx(number(r[2]) / bare, rel=0.05, abs=0.01)
 
 
 def section_rows(markdown: str, heading: str) -> list[list[str]]:
@@ -192,6 +205,8 @@ def test_benchmark_skips_batch_above_its_limit_and_says_so(tmp_path):
     out = tmp_path / "perf.md"
     argv = ["--sizes", "300", "200", "--components", "batch", "kalman", "--batch-max-frames"]
     argv += ["250", "--no-memory", "--profile-frames", "0", "--out", str(out)]
+    argv += ["--reference-frames", "0", "--cli-frames", "0", "--chain-poses", "0"]
+    argv += ["--image-frames", "0"]
     assert benchmark.main(argv) == 0
     page = out.read_text()
     rows = table_rows(page)
