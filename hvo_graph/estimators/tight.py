@@ -36,6 +36,13 @@ while the camera has not moved (no parallax). After each update the whitened
 residual of every new observation is checked against ``reject_chi2`` (chi^2, 2
 dof); a track failing in ``reject_after`` consecutive observations is rejected: no
 more of its observations enter, and the final solve drops all of its factors.
+That gate sees one observation at a time, after the landmark has moved in the
+plane to fit it: an off-plane point the front end excludes after a few frames never
+fails it, yet pulls the poses of those frames and, through the landmarks, the
+world frame. Before the final solve (solvers "isam2" and "batch") every track is
+therefore tested as a whole at the smoothed poses
+(:func:`~hvo_graph.estimators.plane_tracks.off_plane_statistic`, chi^2 with 1 dof
+for a plane point): above ``track_chi2`` it is rejected and the solve runs without it.
 """
 
 from __future__ import annotations
@@ -52,6 +59,7 @@ from hvo_graph.estimators.base import Estimator
 from hvo_graph.estimators.choices import TIGHT_SOLVERS
 from hvo_graph.estimators.factors import motion_factor
 from hvo_graph.estimators.noise_estimation import ProcessNoiseSchedule
+from hvo_graph.estimators.plane_tracks import DEFAULT_TRACK_CHI2, off_plane_statistic
 from hvo_graph.estimators.process_noise import DEFAULT_ACCELERATION_SIGMA, MotionNoise
 from hvo_graph.estimators.process_noise import acceleration_sigma as check_acceleration_sigma
 from hvo_graph.estimators.solvers import Backend, BatchBackend
@@ -139,6 +147,8 @@ class TightSmoother(Estimator):
             the marginal of the whole graph at its optimum.
         plane_sigma: standard deviation (m) of the plane constraint n*^T L = d*.
         reject_chi2, reject_after: the off-plane track gate (module docstring).
+        track_chi2: threshold of the whole-track off-plane test at the end (module
+            docstring; :data:`~hvo_graph.estimators.plane_tracks.DEFAULT_TRACK_CHI2`).
         relinearize_threshold, relinearize_skip: ISAM2's relinearization settings.
         max_iterations: most Levenberg-Marquardt iterations of the final solve.
 
@@ -160,6 +170,7 @@ class TightSmoother(Estimator):
         plane_sigma: float = DEFAULT_PLANE_SIGMA,
         reject_chi2: float = DEFAULT_REJECT_CHI2,
         reject_after: int = DEFAULT_REJECT_AFTER,
+        track_chi2: float = DEFAULT_TRACK_CHI2,
         relinearize_threshold: float = 0.05,
         relinearize_skip: int = 10,
         max_iterations: int = 100,
@@ -181,6 +192,7 @@ class TightSmoother(Estimator):
         self.plane_sigma = as_number(plane_sigma, "plane_sigma", above=0.0)
         self.reject_chi2 = as_number(reject_chi2, "reject_chi2", above=0.0)
         self.reject_after = as_integer(reject_after, "reject_after", 1)
+        self.track_chi2 = as_number(track_chi2, "track_chi2", above=0.0)
         threshold = as_number(relinearize_threshold, "relinearize_threshold", above=0.0)
         skip = as_integer(relinearize_skip, "relinearize_skip", 1)
         max_iterations = as_integer(max_iterations, "max_iterations", 1)
@@ -214,6 +226,10 @@ class TightSmoother(Estimator):
         #: Track ids rejected as off the plane.
         self.rejected_tracks: set[int] = set()
         self._rejected_keys: set[int] = set()
+        #: landmark key -> (track id, [(frame index, m_x, m_y, sigma)]) of its observations.
+        self._seen: dict[int, tuple[int, list[tuple[int, float, float, float]]]] = {}
+        self._plane: tuple[np.ndarray, float] | None = None
+        self._tracks_checked = False
         self._pruned = False
         self._pixel_noise: dict[float, gtsam.noiseModel.Base] = {}
         self._plane_noise: dict[tuple[float, ...], gtsam.noiseModel.Base] = {}
@@ -299,6 +315,7 @@ class TightSmoother(Estimator):
         noise = self._pixel_noise_model(float(points.sigma))
         normal = np.asarray(points.normal, dtype=float)
         distance = float(points.distance)
+        self._plane = (normal, distance)
         added = []
         coordinates = np.asarray(points.m, dtype=float)
         for track, m in zip(np.asarray(points.ids).tolist(), coordinates, strict=True):
@@ -316,6 +333,9 @@ class TightSmoother(Estimator):
                 values.insert(key, point)
                 graph.add(gtsam.PriorFactorPoint3(key, point, self._plane_model(normal)))
             graph.add(gtsam.GenericProjectionFactorCal3_S2(m, noise, X(k), key, _UNIT_CALIBRATION))
+            self._seen.setdefault(key, (track, []))[1].append(
+                (k, float(m[0]), float(m[1]), float(points.sigma))
+            )
             self.counts["observations"] += 1
             added.append((track, key, m))
         return added
@@ -383,6 +403,46 @@ class TightSmoother(Estimator):
 
     # -- results ----------------------------------------------------------------------------
 
+    def _check_tracks(self) -> None:
+        """Reject the tracks whose observations, at the smoothed poses, no plane point fits
+        (:func:`~hvo_graph.estimators.plane_tracks.off_plane_statistic` above
+        ``track_chi2``): the online gate sees one observation at a time, and an off-plane
+        point the front end drops after a few frames never fails it."""
+        if (
+            self._tracks_checked
+            or self._plane is None
+            or not isinstance(self.backend, BatchBackend)
+        ):
+            return
+        self._tracks_checked = True
+        poses = {
+            k: pose
+            for k, (pose, _, _) in zip(
+                self._indices, self.backend.final(self._indices, marginals=False), strict=True
+            )
+        }
+        normal, distance = self._plane
+        for key, (track, seen) in self._seen.items():
+            if key in self._rejected_keys or len(seen) < 3:
+                continue
+            obs = np.array(seen)
+            frames = [poses[int(k)] for k in obs[:, 0]]
+            start = back_project(frames[0], obs[0, 1:3], normal, distance)
+            statistic = off_plane_statistic(
+                np.array([f.rotation().matrix() for f in frames]),
+                np.array([f.translation() for f in frames]),
+                obs[:, 1:3],
+                obs[:, 3],
+                normal,
+                distance,
+                normal * distance if start is None else start,
+            )
+            if statistic > self.track_chi2:
+                self.rejected_tracks.add(track)
+                self._rejected_keys.update(
+                    other for other, (owner, _) in self._seen.items() if owner == track
+                )
+
     def _prune(self) -> None:
         """Drop the factors and values of rejected landmarks from the final graph."""
         if self._pruned or not self._rejected_keys or not isinstance(self.backend, BatchBackend):
@@ -411,6 +471,7 @@ class TightSmoother(Estimator):
         twists = np.empty((n, 6))
         covariances = np.empty((n, 12, 12)) if self.compute_covariance else None
         if n:
+            self._check_tracks()
             self._prune()
             finals = self.backend.final(self._indices, marginals=self.compute_covariance)
             for i, (pose, twist, cov) in enumerate(finals):

@@ -1,0 +1,119 @@
+"""Is a track a point of the plane? The likelihood-ratio test of the tight smoother.
+
+A point off the plane n*^T X = d* projects like a plane point only while the camera
+does not translate: with parallax, no plane point fits all of its observations. Given
+the poses T_wc(k) of the frames that saw the track, the test compares the best fit of
+its normalized observations m_k (isotropic noise sigma_k) by a point held on the
+plane (2 unknowns) with the best fit by a free point (3 unknowns)::
+
+    statistic = min_{X on plane} chi^2(X) - min_X chi^2(X)
+
+For a plane point, and poses far better known than one pixel, the statistic follows
+chi^2 with 1 degree of freedom (one constraint): above :data:`DEFAULT_TRACK_CHI2` the
+track is off the plane. Unlike a gate on each observation's residual, it pools every
+observation of the track, so a small parallax seen over many frames is enough.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+__all__ = ["DEFAULT_TRACK_CHI2", "off_plane_statistic"]
+
+#: chi^2_1(0.999): the likelihood-ratio statistic beyond which a track is off the plane.
+DEFAULT_TRACK_CHI2: float = 10.827566170662733
+
+#: Gauss-Newton iterations of each fit (the problems have 2 or 3 unknowns).
+_ITERATIONS = 20
+
+#: Depth (normalized units) below which a point is behind the camera: no fit there.
+_MIN_DEPTH = 1e-6
+
+
+def _chi2_and_jacobian(
+    X: np.ndarray, Rt: np.ndarray, p: np.ndarray, m: np.ndarray, w: np.ndarray
+) -> tuple[float, np.ndarray, np.ndarray]:
+    """chi^2 of point X (3,), whitened residuals (2n,) and their Jacobian (2n, 3) in X."""
+    c = np.einsum("kij,kj->ki", Rt, X[None] - p)  # camera coordinates (n, 3)
+    z = c[:, 2]
+    if np.any(z < _MIN_DEPTH):
+        return np.inf, np.empty(0), np.empty((0, 3))
+    r = (m - c[:, :2] / z[:, None]) * w[:, None]
+    d = np.zeros((len(z), 2, 3))  # d(projection)/dc
+    d[:, 0, 0] = d[:, 1, 1] = 1.0 / z
+    d[:, :, 2] = -c[:, :2] / (z * z)[:, None]
+    J = -(d @ Rt) * w[:, None, None]  # d r / d X
+    return float(np.sum(r * r)), r.reshape(-1), J.reshape(-1, 3)
+
+
+def _fit(
+    X: np.ndarray,
+    basis: np.ndarray,
+    Rt: np.ndarray,
+    p: np.ndarray,
+    m: np.ndarray,
+    w: np.ndarray,
+) -> tuple[float, np.ndarray]:
+    """Least squares over X + basis^T a (basis (q, 3)) from X: damped Gauss-Newton steps
+    accepted only when chi^2 decreases; returns (chi^2, X)."""
+    chi2, r, J = _chi2_and_jacobian(X, Rt, p, m, w)
+    if not np.isfinite(chi2):
+        return chi2, X
+    damping = 1e-9
+    for _ in range(_ITERATIONS):
+        A = J @ basis.T
+        H = A.T @ A
+        g = A.T @ r
+        step = np.linalg.solve(H + damping * np.trace(H) * np.eye(len(H)), -g)
+        candidate = X + basis.T @ step
+        new, r_new, J_new = _chi2_and_jacobian(candidate, Rt, p, m, w)
+        if not new < chi2:
+            damping *= 100.0
+            if damping > 1e3:
+                break
+            continue
+        done = chi2 - new <= 1e-10 * chi2 + 1e-12
+        X, chi2, r, J = candidate, new, r_new, J_new
+        damping = max(damping / 10.0, 1e-12)
+        if done:
+            break
+    return chi2, X
+
+
+def off_plane_statistic(
+    rotations: np.ndarray,
+    positions: np.ndarray,
+    m: np.ndarray,
+    sigma: np.ndarray,
+    normal: np.ndarray,
+    distance: float,
+    start: np.ndarray,
+) -> float:
+    """The likelihood-ratio statistic of one track (module docstring): >= 0, ~chi^2_1 for a
+    point of the plane.
+
+    Args:
+        rotations: (n, 3, 3) R_wc of the frames that saw the track.
+        positions: (n, 3) p_wc of those frames.
+        m: (n, 2) the track's normalized coordinates (x/z, y/z) in those frames.
+        sigma: (n,) standard deviation of each coordinate of m.
+        normal, distance: n* (3,) and d* of the plane in W.
+        start: (3,) a point of the plane near the track (e.g. its landmark).
+    Returns:
+        chi^2 of the best plane point minus chi^2 of the best free point; inf when no
+        plane point near ``start`` is in front of every camera.
+    """
+    Rt = np.transpose(np.asarray(rotations, dtype=float), (0, 2, 1))
+    p = np.asarray(positions, dtype=float)
+    m = np.asarray(m, dtype=float)
+    w = 1.0 / np.asarray(sigma, dtype=float)
+    n = np.asarray(normal, dtype=float)
+    X = np.asarray(start, dtype=float) + (distance - n @ start) * n  # onto the plane
+    a = np.cross(n, [1.0, 0.0, 0.0] if abs(n[0]) < 0.9 else [0.0, 1.0, 0.0])
+    a /= np.linalg.norm(a)
+    in_plane = np.vstack((a, np.cross(n, a)))
+    on_plane, X = _fit(X, in_plane, Rt, p, m, w)
+    if not np.isfinite(on_plane):
+        return np.inf
+    free, _ = _fit(X, np.eye(3), Rt, p, m, w)
+    return max(0.0, on_plane - free)
