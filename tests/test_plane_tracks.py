@@ -103,3 +103,24 @@ def test_tight_rejects_off_plane_tracks_the_front_end_let_in(seed):
 def _inliers(points):
     keep = points.ids < OUTLIER_ID_START
     return dataclasses.replace(points, ids=points.ids[keep], m=points.m[keep])
+
+
+def test_a_trajectory_asked_midway_does_not_stop_the_test():
+    """trajectory() during the run tests the tracks seen so far; later frames are tested
+    again at the end (and a track rejected then leaves the final graph too)."""
+    scenario = draw("outliers-dropouts", 1, duration=4.0).scenario
+    frames = measure(scenario.observations, scenario, method="tight")
+    outliers = {int(i) for f in frames if f.points is not None for i in f.points.ids} - set(
+        range(OUTLIER_ID_START)
+    )
+    tight = TightSmoother()
+    for frame in frames[:5]:  # too little parallax yet: nothing rejected
+        tight.update(frame)
+    tight.trajectory()
+    assert tight.rejected_tracks == set()
+    for frame in frames[5:]:
+        tight.update(frame)
+    trajectory = tight.trajectory()
+    assert tight.rejected_tracks == outliers
+    assert not set(tight.backend.graph.keyVector()) & tight._rejected_keys
+    assert len(trajectory) == len(frames)

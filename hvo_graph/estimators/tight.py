@@ -229,8 +229,8 @@ class TightSmoother(Estimator):
         #: landmark key -> (track id, [(frame index, m_x, m_y, sigma)]) of its observations.
         self._seen: dict[int, tuple[int, list[tuple[int, float, float, float]]]] = {}
         self._plane: tuple[np.ndarray, float] | None = None
-        self._tracks_checked = False
-        self._pruned = False
+        self._tracks_checked = False  # since the latest frame
+        self._pruned_keys: set[int] = set()
         self._pixel_noise: dict[float, gtsam.noiseModel.Base] = {}
         self._plane_noise: dict[tuple[float, ...], gtsam.noiseModel.Base] = {}
         #: Projection factors added, and landmarks started.
@@ -289,6 +289,7 @@ class TightSmoother(Estimator):
         values.insert(V(k), twist_guess)
         self._indices.append(k)
         self._times.append(t)
+        self._tracks_checked = False
         pose, twist, covariance = self.backend.add(graph, values, k, t - self._times[0])
         self._pose, self._twist = pose, np.asarray(twist, dtype=float)
         if new:
@@ -445,7 +446,7 @@ class TightSmoother(Estimator):
 
     def _prune(self) -> None:
         """Drop the factors and values of rejected landmarks from the final graph."""
-        if self._pruned or not self._rejected_keys or not isinstance(self.backend, BatchBackend):
+        if self._rejected_keys <= self._pruned_keys or not isinstance(self.backend, BatchBackend):
             return
         backend = self.backend
         backend.final([], marginals=False)  # let an ISAM2 back end hand over its estimate
@@ -461,7 +462,7 @@ class TightSmoother(Estimator):
                 backend.initial.erase(key)
         backend.graph = kept
         backend._result = None
-        self._pruned = True
+        self._pruned_keys = set(self._rejected_keys)
 
     def trajectory(self) -> Trajectory:
         """The smoothed estimate of every frame so far (the class docstring per solver)."""
