@@ -13,7 +13,11 @@ import dataclasses
 import numpy as np
 import pytest
 
-from hvo_graph.estimators.plane_tracks import DEFAULT_TRACK_CHI2, off_plane_statistic
+from hvo_graph.estimators.plane_tracks import (
+    DEFAULT_TRACK_CHI2,
+    off_plane_keys,
+    off_plane_statistic,
+)
 from hvo_graph.estimators.tight import TightSmoother
 from hvo_graph.eval.consistency import trajectory_nees
 from hvo_graph.eval.metrics import error_series, summarize
@@ -70,6 +74,36 @@ def test_an_off_plane_point_needs_parallax():
     # Rotation only: every point projects like some plane point.
     rotations, positions = poses(30, 0.0)
     assert statistic(off, rotations, positions, rng) < DEFAULT_TRACK_CHI2
+
+
+def test_off_plane_keys_finds_the_off_plane_landmarks_among_rows():
+    rng = np.random.default_rng(5)
+    rotations, positions = poses(20, 0.1)
+    points = {
+        3: np.array([0.2, 0.1, DISTANCE]),
+        7: np.array([-0.1, 0.3, DISTANCE - 0.4]),  # off the plane
+        9: np.array([0.0, -0.2, DISTANCE]),
+        11: np.array([0.3, 0.3, DISTANCE - 0.4]),  # off, but skipped
+        12: np.array([0.1, 0.0, DISTANCE - 0.4]),  # off, but seen twice only
+    }
+    rows = []
+    for key, point in points.items():
+        m = observe(point, rotations, positions, rng)
+        frames = np.arange(2) if key == 12 else np.arange(len(m))
+        rows += [(f, key, *m[f]) for f in frames]
+    rng.shuffle(rows)  # observations in any order
+    table = np.array(rows)
+    found = off_plane_keys(
+        rotations,
+        positions,
+        table[:, 0].astype(int),
+        table[:, 1].astype(int),
+        table[:, 2:4],
+        np.full(len(table), SIGMA),
+        (NORMAL, DISTANCE),
+        skip={11},
+    )
+    assert found == [7]
 
 
 @pytest.mark.parametrize("seed", [1, 2])

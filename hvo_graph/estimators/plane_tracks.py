@@ -16,9 +16,11 @@ observation of the track, so a small parallax seen over many frames is enough.
 
 from __future__ import annotations
 
+from collections.abc import Collection
+
 import numpy as np
 
-__all__ = ["DEFAULT_TRACK_CHI2", "off_plane_statistic"]
+__all__ = ["DEFAULT_TRACK_CHI2", "off_plane_keys", "off_plane_statistic"]
 
 #: chi^2_1(0.999): the likelihood-ratio statistic beyond which a track is off the plane.
 DEFAULT_TRACK_CHI2: float = 10.827566170662733
@@ -117,3 +119,48 @@ def off_plane_statistic(
         return np.inf
     free, _ = _fit(X, np.eye(3), Rt, p, m, w)
     return max(0.0, on_plane - free)
+
+
+def off_plane_keys(
+    rotations: np.ndarray,
+    positions: np.ndarray,
+    frame: np.ndarray,
+    key: np.ndarray,
+    m: np.ndarray,
+    sigma: np.ndarray,
+    plane: tuple[np.ndarray, float],
+    threshold: float = DEFAULT_TRACK_CHI2,
+    *,
+    skip: Collection[int] = (),
+) -> list[int]:
+    """The landmarks whose observations no plane point fits: :func:`off_plane_statistic`
+    above ``threshold``, for every landmark with at least 3 observations.
+
+    Args:
+        rotations, positions: (F, 3, 3) R_wc and (F, 3) p_wc of the frames.
+        frame: (N,) row of each observation's frame in ``rotations``.
+        key: (N,) the landmark (any integer id) of each observation.
+        m: (N, 2) normalized coordinates; sigma: (N,) their standard deviations.
+        plane: (n* (3,), d*) in W.
+        threshold: chi^2 of the test (default chi^2_1(0.999)).
+        skip: landmarks not to test (already rejected).
+    Returns:
+        The failing landmarks, in increasing order.
+    """
+    normal, distance = np.asarray(plane[0], dtype=float), float(plane[1])
+    key = np.asarray(key)
+    order = np.argsort(key, kind="stable")
+    unique, starts = np.unique(key[order], return_index=True)
+    failed = []
+    for landmark, rows in zip(unique.tolist(), np.split(order, starts[1:]), strict=True):
+        if landmark in skip or len(rows) < 3:
+            continue
+        R, p = rotations[frame[rows]], positions[frame[rows]]
+        ray = R[0] @ np.array([m[rows[0], 0], m[rows[0], 1], 1.0])
+        along = float(normal @ ray)
+        depth = (distance - float(normal @ p[0])) / along if abs(along) > 1e-9 else -1.0
+        start = p[0] + depth * ray if depth > 0 else normal * distance
+        statistic = off_plane_statistic(R, p, m[rows], sigma[rows], normal, distance, start)
+        if statistic > threshold:
+            failed.append(int(landmark))
+    return failed

@@ -59,7 +59,7 @@ from hvo_graph.estimators.base import Estimator
 from hvo_graph.estimators.choices import TIGHT_SOLVERS
 from hvo_graph.estimators.factors import motion_factor
 from hvo_graph.estimators.noise_estimation import ProcessNoiseSchedule
-from hvo_graph.estimators.plane_tracks import DEFAULT_TRACK_CHI2, off_plane_statistic
+from hvo_graph.estimators.plane_tracks import DEFAULT_TRACK_CHI2, off_plane_keys
 from hvo_graph.estimators.process_noise import DEFAULT_ACCELERATION_SIGMA, MotionNoise
 from hvo_graph.estimators.process_noise import acceleration_sigma as check_acceleration_sigma
 from hvo_graph.estimators.solvers import Backend, BatchBackend
@@ -226,8 +226,10 @@ class TightSmoother(Estimator):
         #: Track ids rejected as off the plane.
         self.rejected_tracks: set[int] = set()
         self._rejected_keys: set[int] = set()
-        #: landmark key -> (track id, [(frame index, m_x, m_y, sigma)]) of its observations.
-        self._seen: dict[int, tuple[int, list[tuple[int, float, float, float]]]] = {}
+        #: landmark key -> its track id, and per frame (index, keys (N,), m (N, 2), sigma)
+        #: of the observations added (compact: the whole-track test reads them at the end).
+        self._key_track: dict[int, int] = {}
+        self._observations: list[tuple[int, np.ndarray, np.ndarray, float]] = []
         self._plane: tuple[np.ndarray, float] | None = None
         self._tracks_checked = False  # since the latest frame
         self._pruned_keys: set[int] = set()
@@ -293,6 +295,14 @@ class TightSmoother(Estimator):
         pose, twist, covariance = self.backend.add(graph, values, k, t - self._times[0])
         self._pose, self._twist = pose, np.asarray(twist, dtype=float)
         if new:
+            self._observations.append(
+                (
+                    k,
+                    np.array([key for _, key, _ in new], dtype=np.uint64),
+                    np.array([m for _, _, m in new]),
+                    float(points.sigma),  # type: ignore[union-attr]
+                )
+            )
             self._gate(pose, new, points.sigma)  # type: ignore[union-attr]
         return StateEstimate(
             index=k,
@@ -330,13 +340,11 @@ class TightSmoother(Estimator):
                 key = L(self._next_landmark)
                 self._next_landmark += 1
                 self._landmarks[track] = key
+                self._key_track[key] = track
                 self.counts["landmarks"] += 1
                 values.insert(key, point)
                 graph.add(gtsam.PriorFactorPoint3(key, point, self._plane_model(normal)))
             graph.add(gtsam.GenericProjectionFactorCal3_S2(m, noise, X(k), key, _UNIT_CALIBRATION))
-            self._seen.setdefault(key, (track, []))[1].append(
-                (k, float(m[0]), float(m[1]), float(points.sigma))
-            )
             self.counts["observations"] += 1
             added.append((track, key, m))
         return added
@@ -422,27 +430,23 @@ class TightSmoother(Estimator):
                 self._indices, self.backend.final(self._indices, marginals=False), strict=True
             )
         }
-        normal, distance = self._plane
-        for key, (track, seen) in self._seen.items():
-            if key in self._rejected_keys or len(seen) < 3:
-                continue
-            obs = np.array(seen)
-            frames = [poses[int(k)] for k in obs[:, 0]]
-            start = back_project(frames[0], obs[0, 1:3], normal, distance)
-            statistic = off_plane_statistic(
-                np.array([f.rotation().matrix() for f in frames]),
-                np.array([f.translation() for f in frames]),
-                obs[:, 1:3],
-                obs[:, 3],
-                normal,
-                distance,
-                normal * distance if start is None else start,
-            )
-            if statistic > self.track_chi2:
-                self.rejected_tracks.add(track)
-                self._rejected_keys.update(
-                    other for other, (owner, _) in self._seen.items() if owner == track
-                )
+        frames = np.concatenate([np.full(len(keys), k) for k, keys, _, _ in self._observations])
+        row = {k: i for i, k in enumerate(self._indices)}
+        failed = off_plane_keys(
+            np.array([poses[k].rotation().matrix() for k in self._indices]),
+            np.array([poses[k].translation() for k in self._indices]),
+            np.array([row[int(k)] for k in frames], dtype=int),
+            np.concatenate([keys for _, keys, _, _ in self._observations]),
+            np.concatenate([m for _, _, m, _ in self._observations]),
+            np.concatenate([np.full(len(k), s) for _, k, _, s in self._observations]),
+            self._plane,
+            self.track_chi2,
+            skip=self._rejected_keys,
+        )
+        for key in failed:
+            track = self._key_track[key]
+            self.rejected_tracks.add(track)
+            self._rejected_keys.update(k for k, t in self._key_track.items() if t == track)
 
     def _prune(self) -> None:
         """Drop the factors and values of rejected landmarks from the final graph."""
