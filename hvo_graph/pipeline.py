@@ -206,7 +206,7 @@ def run_estimate(
     estimator = make_estimator(method, **options)
     config = front_end_config(scene, method=method, **front)
     front_end = MeasurementFrontEnd(scene.camera, scene.plane, config)
-    frames = [front_end.process(obs) for obs in observations]
+    frames = front_end.process_all(list(observations))
     smoothed = estimator.run(frames)
     trajectory = estimator.online_trajectory() if online else smoothed
     if not options.get("covariance") and trajectory.covariances is not None:

@@ -26,12 +26,13 @@ it lies between; the velocity covariance does not say so. See docs/method.md.
 
 from __future__ import annotations
 
-from collections.abc import Iterable
+from collections.abc import Iterable, Sequence
 from dataclasses import dataclass
 
 import numpy as np
 
 from hvo_graph.errors import InputError, as_integer, as_number
+from hvo_graph.frontend._batch import measure_frames
 from hvo_graph.frontend._points import (
     CollinearMemo,
     TrackedFrame,
@@ -41,12 +42,7 @@ from hvo_graph.frontend._points import (
     shared_count,
 )
 from hvo_graph.frontend.velocity import flow_twist, mid_interval_plane
-from hvo_graph.geometry._fit import (
-    PlaneTransfer,
-    dlt,
-    euclidean,
-    known_normal_motion,
-)
+from hvo_graph.geometry._fit import PlaneTransfer, dlt, euclidean, known_normal_motion
 from hvo_graph.geometry.camera import CameraModel
 from hvo_graph.geometry.continuous import motion_after_twist
 from hvo_graph.geometry.decomposition import decompose_homography, physically_valid_solutions
@@ -248,6 +244,11 @@ class MeasurementFrontEnd:
         rejected = len(self._rejected_ids) + len(obs.ids) - len(ids)
         points = kept_points(ids, m, self._rejected_ids, self._sigma, self._normal, self.plane)
         return FrameMeasurement(obs.index, obs.t, pose, velocity, len(obs.ids), rejected, points)
+
+    def process_all(self, observations: Sequence[FrameObservations]) -> list[FrameMeasurement]:
+        """:meth:`process` of every frame in order; stretches of frames that see the same
+        tracks are measured at once (the same records to rounding, the same state after)."""
+        return measure_frames(self, observations, ROBUST_MIN_POINTS, HUBER)
 
     @property
     def excluded_tracks(self) -> frozenset[int]:
@@ -491,5 +492,4 @@ def measure_sequence(
     if overrides:
         base = config or FrontEndConfig()
         config = FrontEndConfig(**{**base.__dict__, **overrides})
-    front = MeasurementFrontEnd(camera, plane, config)
-    return [front.process(obs) for obs in observations]
+    return MeasurementFrontEnd(camera, plane, config).process_all(list(observations))

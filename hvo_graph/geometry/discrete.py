@@ -195,20 +195,27 @@ def estimate_homography(
     inliers = np.ones(len(a), dtype=bool)
     if ransac_threshold is not None:
         thr = as_number(ransac_threshold, "ransac_threshold", above=0.0)
-        try:
-            H_cv, mask = cv2.findHomography(a[:, :2], b[:, :2], cv2.RANSAC, thr)
-        except cv2.error as exc:
-            raise InputError(f"m_ref, m_cur: RANSAC homography failed ({exc.err})") from None
-        if H_cv is None or mask is None:
-            raise InputError(
-                "m_ref, m_cur: RANSAC found no homography (degenerate or collinear points?)"
-            )
-        inliers = mask.ravel().astype(bool)
-        if inliers.sum() < 4:
-            raise InputError(
-                f"m_ref, m_cur: RANSAC kept {int(inliers.sum())} inliers, need at least 4"
-            )
+        inliers = _ransac_inliers(a, b, thr)
     return _dlt(a[inliers], b[inliers]), inliers
+
+
+def _ransac_inliers(a: np.ndarray, b: np.ndarray, threshold: float) -> np.ndarray:
+    """(N,) bool: the inliers of OpenCV's RANSAC homography of checked (N, 3) points
+    (:func:`estimate_homography`, whose errors it raises)."""
+    try:
+        H_cv, mask = cv2.findHomography(a[:, :2], b[:, :2], cv2.RANSAC, threshold)
+    except cv2.error as exc:
+        raise InputError(f"m_ref, m_cur: RANSAC homography failed ({exc.err})") from None
+    if H_cv is None or mask is None:
+        raise InputError(
+            "m_ref, m_cur: RANSAC found no homography (degenerate or collinear points?)"
+        )
+    inliers = mask.ravel().astype(bool)
+    if inliers.sum() < 4:
+        raise InputError(
+            f"m_ref, m_cur: RANSAC kept {int(inliers.sum())} inliers, need at least 4"
+        )
+    return inliers
 
 
 # --------------------------------------------------------------------------- normalization

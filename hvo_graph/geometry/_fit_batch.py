@@ -1,0 +1,262 @@
+"""The front end's H_d pose fit for many frames at once (a leading frame axis F).
+
+The arithmetic of :mod:`hvo_graph.geometry._fit` (the normalized DLT, the Euclidean
+normalization, the known-normal motion, the Gauss-Newton refinement of the transfer
+error, its chi^2 gate and the pose noise), written over stacks of frames that share
+one reference point set: every frame of a stretch in which the same tracks are
+matched against the same reference. The per-frame path pays the interpreter for
+some hundred numpy calls on 4 to 20 rows; here each call covers the whole stack.
+
+Point subsets (RANSAC's inliers, the points a gate keeps) are weights w (F, N) of 0 or
+1: a point of weight 0 adds exact zeros to every sum, so the result is that of the
+per-frame function on the subset, to rounding. Nothing raises: where the per-frame functions would raise an InputError (degenerate
+points, points behind the camera, det(H) <= 0), the frame is marked in a boolean
+``bad`` array and the caller measures it with the per-frame path, which raises or
+refuses exactly as before. Shapes: F frames, N points; m_ref (N, 3) is shared, m_cur
+(F, N, 3).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from hvo_graph.geometry.discrete import DEGENERACY_TOL
+
+_SKEW_ROWS = np.array([0, 0, 1, 1, 2, 2])
+_SKEW_COLS = np.array([1, 2, 0, 2, 0, 1])
+_SKEW_SRC = np.array([2, 1, 2, 0, 1, 0])
+_SKEW_SIGN = np.array([-1.0, 1.0, 1.0, -1.0, -1.0, 1.0])
+_EPS = np.finfo(float).eps
+
+
+def _tr(a: np.ndarray) -> np.ndarray:
+    """Transpose of the last two axes."""
+    return np.swapaxes(a, -1, -2)
+
+
+def hartley(m: np.ndarray, w: np.ndarray) -> np.ndarray:
+    """(F, 3, 3) :func:`~hvo_graph.geometry.discrete._hartley` of the points of weight 1
+    of (F | 1, N, 3) points, weights w (F, N)."""
+    xy = m[..., :2]
+    count = w.sum(axis=1)
+    c = np.einsum("fn,fni->fi", w, np.broadcast_to(xy, (len(w), *xy.shape[-2:]))) / count[:, None]
+    dist = np.linalg.norm(xy - c[:, None, :], axis=-1)
+    mean_dist = np.sum(w * dist, axis=1) / count
+    mean_dist = np.where(mean_dist <= 0.0, 1.0, mean_dist)
+    s = np.sqrt(2.0) / mean_dist
+    T = np.zeros((*s.shape, 3, 3))
+    T[..., 0, 0] = T[..., 1, 1] = s
+    T[..., 0, 2] = -s * c[..., 0]
+    T[..., 1, 2] = -s * c[..., 1]
+    T[..., 2, 2] = 1.0
+    return T
+
+
+def dlt(m_ref: np.ndarray, m_cur: np.ndarray, w: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """(H (F, 3, 3) with ||H||_F = 1, bad (F,)): the normalized DLT of
+    :func:`~hvo_graph.geometry.discrete._dlt` per frame on its points of weight 1;
+    ``bad`` where it would raise (a degenerate point set or correspondence)."""
+    F, n = m_cur.shape[:2]
+    T_ref = hartley(m_ref[None], w)
+    T_cur = hartley(m_cur, w)
+    a = (m_ref @ _tr(T_ref)) * w[..., None]  # zero rows: the points left out
+    b = (m_cur @ _tr(T_cur)) * w[..., None]
+    # The identity systems of each point set only say whether it is degenerate; frames
+    # with the same reference weights share the reference's (computed once).
+    weights, first = np.unique(w, axis=0, return_inverse=True)[:2] if F > 1 else (w, [0])
+    a_sets = (m_ref @ _tr(hartley(m_ref[None], weights))) * weights[..., None]
+    ratio_ref = _ratios(_system(a_sets, a_sets))[np.ravel(first)]
+    ratio_cur = _ratios(_system(b, b))
+    _, s, Vt = np.linalg.svd(_system(a, b), full_matrices=2 * n < 9)
+    ratio = s[:, 7] / s[:, 0]
+    bad = ~(
+        (ratio_ref >= DEGENERACY_TOL) & (ratio_cur >= DEGENERACY_TOL) & (ratio >= DEGENERACY_TOL)
+    )
+    Hn = Vt[:, -1].reshape(F, 3, 3)
+    H = np.linalg.solve(T_cur, Hn @ T_ref)
+    return H / np.linalg.norm(H, axis=(1, 2))[:, None, None], bad
+
+
+def _system(src: np.ndarray, dst: np.ndarray) -> np.ndarray:
+    """(F, 2N, 9) DLT systems: rows x and y of dst x (H src) = 0 for h = H.ravel()."""
+    F, n = src.shape[:2]
+    A = np.zeros((F, 2 * n, 9))
+    A[:, 0::2, 3:6] = -src
+    A[:, 0::2, 6:9] = dst[..., 1:2] * src
+    A[:, 1::2, 0:3] = src
+    A[:, 1::2, 6:9] = -dst[..., 0:1] * src
+    return A
+
+
+def _ratios(A: np.ndarray) -> np.ndarray:
+    """(F,) sigma_8 / sigma_1 of each system."""
+    s = np.linalg.svd(A, compute_uv=False)
+    return s[:, 7] / s[:, 0]
+
+
+def euclidean(
+    H: np.ndarray, m_ref: np.ndarray, m_cur: np.ndarray, w: np.ndarray
+) -> tuple[np.ndarray, np.ndarray]:
+    """(H_d (F, 3, 3), bad (F,)): :func:`~hvo_graph.geometry.discrete._euclidean` per frame
+    on its points of weight 1."""
+    s = np.linalg.svd(H, compute_uv=False)
+    bad = ~(s[:, 1] > 1e-12 * np.maximum(s[:, 0], np.finfo(float).tiny))
+    H = H / s[:, 1, None, None]
+    g = np.einsum("fij,fjk,ik->fi", m_cur, H, m_ref)
+    used = w > 0
+    flip = np.all((g < 0) | ~used, axis=1)
+    H = np.where(flip[:, None, None], -H, H)
+    g = np.where(flip[:, None], -g, g)
+    return H, bad | ~np.all((g > 0) | ~used, axis=1)
+
+
+def known_normal_motion(
+    H: np.ndarray, normal: np.ndarray, basis: np.ndarray
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """(R (F, 3, 3), t (F, 3), bad (F,)): :func:`~hvo_graph.geometry._fit.known_normal_motion`
+    per frame; ``bad`` where det(H) <= 0."""
+    bad = ~(np.linalg.det(H) > 0)
+    u1, u2 = basis
+    B = (H @ u1)[:, :, None] * u1 + (H @ u2)[:, :, None] * u2
+    U, _, Vt = np.linalg.svd(B)
+    d = np.ones((len(H), 3))
+    d[:, 2] = np.sign(np.linalg.det(U @ Vt))
+    R = (U * d[:, None, :]) @ Vt
+    return R, H @ normal - R @ normal, bad
+
+
+def retract(R: np.ndarray, T: np.ndarray, delta: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """:func:`~hvo_graph.geometry._fit.retract` per frame: the motion after the right
+    perturbation T_wc Exp(delta) (GTSAM's Pose3 retract: compose with Pose3.Expmap)."""
+    w, v = delta[:, :3], delta[:, 3:]
+    theta2 = np.einsum("fi,fi->f", w, w)
+    near = theta2 <= _EPS
+    theta = np.sqrt(theta2)
+    safe_t = np.where(near, 1.0, theta)
+    safe_t2 = np.where(near, 1.0, theta2)
+    s_half = np.sin(safe_t / 2.0)
+    A = np.where(near, 1.0, np.sin(safe_t) / safe_t)
+    B = np.where(near, 0.5, 2.0 * s_half * s_half / safe_t2)
+    C = np.where(near, 1.0 / 6.0, (1.0 - A) / safe_t2)
+    W = np.zeros((len(w), 3, 3))
+    W[:, _SKEW_ROWS, _SKEW_COLS] = w[:, _SKEW_SRC] * _SKEW_SIGN
+    Rd = np.eye(3) + A[:, None, None] * W + B[:, None, None] * (W @ W)
+    Wv = np.cross(w, v)
+    td = v + B[:, None] * Wv + C[:, None] * np.cross(w, Wv)
+    R_wc = _tr(R)
+    p = -(R_wc @ T[..., None])[..., 0]
+    R_new_wc = R_wc @ Rd
+    p_new = p + (R_wc @ td[..., None])[..., 0]
+    R_new = _tr(R_new_wc)
+    return R_new, -(R_new @ p_new[..., None])[..., 0]
+
+
+class BatchTransfer:
+    """:class:`~hvo_graph.geometry._fit.PlaneTransfer` of F frames against one reference.
+
+    Args:
+        m_ref: (N, 3) reference points; m_cur: (F, N, 3) current points, row by row the
+            same tracks; normal, distance: n*, d* in the reference frame; sigma: pixel
+            noise in normalized units.
+    """
+
+    def __init__(
+        self,
+        m_ref: np.ndarray,
+        m_cur: np.ndarray,
+        normal: np.ndarray,
+        distance: float,
+        sigma: float,
+    ):
+        n, d = normal, distance
+        depth = m_ref @ n
+        self.X_star = d * m_ref / depth[:, None]
+        dXstar = d * (
+            np.eye(3)[None] / depth[:, None, None]
+            - np.einsum("ni,j->nij", m_ref, n) / depth[:, None, None] ** 2
+        )
+        self.dXstar2 = dXstar[:, :, :2]
+        self.current = m_cur[..., :2]
+        self.sigma = sigma
+
+    def linearize(self, R: np.ndarray, T: np.ndarray) -> tuple[tuple[np.ndarray, ...], np.ndarray]:
+        """((J, JtW, residual, A, cov), bad (F,)) as ``PlaneTransfer.linearize`` per frame;
+        ``bad`` where a transferred point has non-positive depth (or NaN).
+
+        J = P [X^ | -I] and the 2 x 2 inverses are written out entry by entry (the same
+        products as the matrix calls, in one array operation each)."""
+        X = self.X_star @ _tr(R) + T[:, None, :]
+        x, y, z = X[..., 0], X[..., 1], X[..., 2]
+        bad = ~(z.min(axis=1) > 0)
+        iz = 1.0 / z
+        u, v = x * iz, y * iz  # pi(X)
+        P = np.zeros((*z.shape, 2, 3))
+        P[..., 0, 0] = P[..., 1, 1] = iz
+        P[..., 0, 2] = -u * iz
+        P[..., 1, 2] = -v * iz
+        J = np.empty((*z.shape, 2, 6))
+        J[..., 0, 0], J[..., 0, 1], J[..., 0, 2] = u * v, -1.0 - u * u, v
+        J[..., 1, 0], J[..., 1, 1], J[..., 1, 2] = 1.0 + v * v, -u * v, -u
+        J[..., :, 3:] = -P
+        residual = self.current - np.stack((u, v), axis=-1)
+        A = (P @ R[:, None]) @ self.dXstar2
+        cov = self.sigma**2 * (np.eye(2) + A @ _tr(A))
+        a, b, c, d = cov[..., 0, 0], cov[..., 0, 1], cov[..., 1, 0], cov[..., 1, 1]
+        inv = (
+            np.stack((d, -b, -c, a), axis=-1).reshape(cov.shape) / (a * d - b * c)[..., None, None]
+        )
+        JtW = _tr(J) @ inv
+        return (J, JtW, residual, A, cov), bad
+
+    def normal_equations(
+        self, R: np.ndarray, T: np.ndarray, huber: float | None, w: np.ndarray
+    ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """(info (F, 6, 6), grad (F, 6), bad (F,)) as ``PlaneTransfer.normal_equations`` on
+        the points of weight 1."""
+        (J, JtW, r, _, cov), bad = self.linearize(R, T)
+        if huber is not None:
+            d = np.sqrt(np.einsum("fni,fni->fn", r, np.linalg.solve(cov, r[..., None])[..., 0]))
+            w = w * np.minimum(1.0, huber / np.maximum(d, 1e-12))
+        JtW = JtW * w[..., None, None]
+        return np.sum(JtW @ J, axis=1), np.einsum("fnij,fnj->fi", JtW, r), bad
+
+    def refine(
+        self, R: np.ndarray, T: np.ndarray, steps: int, huber: float | None, w: np.ndarray
+    ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+        """(R, T, info before the last step, bad) as ``PlaneTransfer.refine`` per frame on
+        the points of weight 1."""
+        info, grad, bad = self.normal_equations(R, T, huber, w)
+        for step in range(steps):
+            if step:
+                info, grad, more = self.normal_equations(R, T, huber, w)
+                bad |= more
+            # A bad frame's numbers are discarded; keep them finite for the solve.
+            info = np.where(bad[:, None, None], np.eye(6), info)
+            grad = np.where(bad[:, None], 0.0, grad)
+            R, T = retract(R, T, np.linalg.solve(info, grad[..., None])[..., 0])
+        return R, T, info, bad
+
+    @staticmethod
+    def chi2(lin: tuple[np.ndarray, ...], info: np.ndarray) -> np.ndarray:
+        """(F, N) ``PlaneTransfer.chi2`` per frame."""
+        J, _, residual, _, cov = lin
+        cov = cov + J @ np.linalg.solve(info[:, None], _tr(J))
+        whitened = np.linalg.solve(cov, residual[..., None])[..., 0]
+        return np.einsum("fni,fni->fn", residual, whitened)
+
+    def noise(
+        self, lin: tuple[np.ndarray, ...], w: np.ndarray
+    ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """(covariance, reference covariance, reference Jacobian (F, 6, 2N): zero columns for
+        the points of weight 0), as ``PlaneTransfer.noise`` per frame on the points of
+        weight 1."""
+        J, JtW, _, A, _ = lin
+        JtW = JtW * w[..., None, None]
+        F, n = J.shape[:2]
+        sigma = self.sigma
+        info = np.sum(JtW @ J, axis=1)
+        H = np.linalg.solve(info, JtW.transpose(0, 2, 1, 3).reshape(F, 6, 2 * n))
+        G = np.linalg.solve(info, (JtW @ A).transpose(0, 2, 1, 3).reshape(F, 6, 2 * n))
+        current, reference = sigma**2 * (H @ _tr(H)), sigma**2 * (G @ _tr(G))
+        covariance = 0.5 * (current + _tr(current) + reference + _tr(reference))
+        return covariance, 0.5 * (reference + _tr(reference)), -sigma * G
