@@ -9,11 +9,11 @@ some hundred numpy calls on 4 to 20 rows; here each call covers the whole stack.
 
 Point subsets (RANSAC's inliers, the points a gate keeps) are weights w (F, N) of 0 or
 1: a point of weight 0 adds exact zeros to every sum, so the result is that of the
-per-frame function on the subset, to rounding. Nothing raises: where the per-frame functions would raise an InputError (degenerate
-points, points behind the camera, det(H) <= 0), the frame is marked in a boolean
-``bad`` array and the caller measures it with the per-frame path, which raises or
-refuses exactly as before. Shapes: F frames, N points; m_ref (N, 3) is shared, m_cur
-(F, N, 3).
+per-frame function on the subset, to rounding. Nothing raises: where the per-frame
+functions would raise an InputError (degenerate points, points behind the camera,
+det(H) <= 0), the frame is marked in a boolean ``bad`` array and the caller measures
+it with the per-frame path, which raises or refuses exactly as before. Shapes: F
+frames, N points; m_ref (N, 3) is shared, m_cur (F, N, 3).
 """
 
 from __future__ import annotations

@@ -212,9 +212,7 @@ def _ransac_inliers(a: np.ndarray, b: np.ndarray, threshold: float) -> np.ndarra
         )
     inliers = mask.ravel().astype(bool)
     if inliers.sum() < 4:
-        raise InputError(
-            f"m_ref, m_cur: RANSAC kept {int(inliers.sum())} inliers, need at least 4"
-        )
+        raise InputError(f"m_ref, m_cur: RANSAC kept {int(inliers.sum())} inliers, need at least 4")
     return inliers
 
 
