@@ -39,11 +39,11 @@ class Estimator(ABC):
     def update(self, frame: FrameMeasurement) -> StateEstimate:
         """Fuse the measurements of the next frame; return its online estimate."""
         if self._online:
-            last = self._online[-1]
-            if frame.index <= last.index or frame.t <= last.t:
+            index, t = self._online.last()
+            if frame.index <= index or frame.t <= t:
                 raise InputError(
                     f"frame {frame.index} (t={frame.t}) does not follow frame "
-                    f"{last.index} (t={last.t}): frames must arrive in increasing order"
+                    f"{index} (t={t}): frames must arrive in increasing order"
                 )
         estimate = self._update(frame)
         self._online.append(estimate)

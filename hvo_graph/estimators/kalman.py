@@ -48,6 +48,7 @@ from hvo_graph.estimators.kalman_model import (
     _check_pitch,
     _check_process_noise,
     _euler_rates,
+    _euler_rates_inverse,
     _rotation,
     _selection,
     _state_measurement,
@@ -69,6 +70,10 @@ from hvo_graph.estimators.process_noise import (
 from hvo_graph.geometry.rotation import euler_to_rotation
 from hvo_graph.types import FrameMeasurement, StateEstimate, Trajectory
 
+#: R_k diagonals of the paper's presets by (id of the row pattern, preset): constant.
+_PRESET_ROWS: dict[tuple[int, str], tuple] = {}
+#: [w; v] of the state (body-frame velocity): x[9:12], x[6:9].
+_TWIST_ROWS = np.r_[ANGULAR_VELOCITY, LINEAR_VELOCITY]
 _I12 = np.eye(12)
 _I12.setflags(write=False)
 #: state_to_tangent_jacobian's constant entries (body-frame velocity state).
@@ -182,6 +187,7 @@ class KalmanBaseline(Estimator):
         self.K: np.ndarray | None = None
         self._t_prev: float | None = None
         self._q_cache: dict[float, tuple[np.ndarray, np.ndarray]] = {}
+        self._R_diag: tuple[np.ndarray | None, np.ndarray | None] = (None, None)
 
     # -- the textbook steps ---------------------------------------------------------
 
@@ -200,16 +206,27 @@ class KalmanBaseline(Estimator):
         K = P H^T S^-1, x = x + K y, P = (I - K H) P (I - K H)^T + K R K^T (Joseph form).
         """
         H, angle = _selection(rows)
-        R = np.diag(np.asarray(R_diag, dtype=float))
-        y = np.asarray(z, dtype=float) - H @ self.x
+        r = np.asarray(R_diag, dtype=float)
+        R = self._R_diag[1] if self._R_diag[0] is r else np.diag(r)
+        self._R_diag = (r, R)  # the presets give the same r array frame after frame
+        # H selects rows of I_12, so H v = v[rows], H P = P[rows], K H = K in the columns
+        # rows and K R = K r: the same numbers as the products, without the 12 x 12 matmuls.
+        P = self.P
+        full = len(rows) == 12
+        HP = P if full else P[rows]
+        y = np.asarray(z, dtype=float) - (self.x if full else self.x[rows])
         if angle is not None:
             _wrap_entries(y, angle)
-        S = H @ self.P @ H.T + R
-        K = np.linalg.solve(S, H @ self.P).T  # = P H^T S^-1 (P, S symmetric)
+        S = (HP if full else HP[:, rows]) + R
+        K = np.linalg.solve(S, HP).T  # = P H^T S^-1 (P, S symmetric)
         x = self.x + K @ y
         _wrap_angles(x)
-        I_KH = _I12 - K @ H
-        P = I_KH @ self.P @ I_KH.T + K @ R @ K.T
+        if full:
+            I_KH = _I12 - K
+        else:
+            I_KH = _I12.copy()
+            I_KH[:, rows] -= K
+        P = I_KH @ P @ I_KH.T + (K * r) @ K.T
         self.x, self.P = x, 0.5 * (P + P.T)
         self.H, self.R, self.y, self.S, self.K = H, R, y, S, K
 
@@ -246,7 +263,11 @@ class KalmanBaseline(Estimator):
                 )
             return meas.variance
         full = PAPER_R_NOISY if self.r_preset == "paper-noisy" else PAPER_R_NOISE_FREE
-        return full[meas.rows]
+        key = (id(meas.rows), self.r_preset)
+        kept = _PRESET_ROWS.get(key)  # constant per row pattern: the same array each frame
+        if kept is None or kept[0] is not meas.rows:
+            kept = _PRESET_ROWS[key] = (meas.rows, full[meas.rows], None)
+        return kept[1]
 
     def _update(self, frame: FrameMeasurement) -> StateEstimate:
         t = float(frame.t)
@@ -317,9 +338,9 @@ class KalmanBaseline(Estimator):
         else:  # the same arithmetic without the argument checks
             p, w, r = x[3:6].tolist()
             R_wc = _rotation(r, p, w)
-            v = x[LINEAR_VELOCITY]
+            v = None  # the state's body velocity: twist = x[_TWIST_ROWS]
             J = _J_TEMPLATE.copy()
-            J[0:3, 3:6] = np.linalg.inv(_euler_rates(r, p, "euler_rate_matrix"))
+            J[0:3, 3:6] = _euler_rates_inverse(r, p, "euler_rate_matrix")
             J[3:6, 0:3] = R_wc.T
         cov = J @ self.P @ J.T
         if self._shared_nonzero:  # "measured" with reference covariances
@@ -329,6 +350,6 @@ class KalmanBaseline(Estimator):
             t=t,
             rotation=R_wc,
             position=x[POSITION].copy(),
-            twist=np.concatenate((x[ANGULAR_VELOCITY], v)),
+            twist=x[_TWIST_ROWS] if v is None else np.concatenate((x[ANGULAR_VELOCITY], v)),
             covariance=0.5 * (cov + cov.T),
         )

@@ -112,6 +112,16 @@ def _euler_rates(r: float, p: float, what: str) -> np.ndarray:
     )
 
 
+def _euler_rates_inverse(r: float, p: float, what: str) -> np.ndarray:
+    """E^-1 of :func:`_euler_rates` in closed form (body rates from Euler rates):
+    wx = cos r pdot + sin r cos p wdot, wy = -sin r pdot + cos r cos p wdot,
+    wz = rdot - sin p wdot; the same pitch check."""
+    if not (math.isfinite(p) and -MAX_ABS_PITCH <= p <= MAX_ABS_PITCH):
+        _check_pitch(p, what)
+    sr, cr, sp, cp = math.sin(r), math.cos(r), math.sin(p), math.cos(p)
+    return np.array([[cr, sr * cp, 0.0], [-sr, cr * cp, 0.0], [0.0, -sp, 1.0]])
+
+
 def _rotation(r: float, p: float, w: float) -> np.ndarray:
     """R_wc = R_y(w) R_x(p) R_z(r) of Python floats: the product of
     :func:`~hvo_graph.geometry.rotation.euler_to_rotation`, written out."""
@@ -127,12 +137,16 @@ def _rotation(r: float, p: float, w: float) -> np.ndarray:
     )
 
 
-#: (H, angle mask or None) of each measured row pattern (pose, velocity, both).
-_SELECTIONS: dict[bytes, tuple[np.ndarray, np.ndarray | None]] = {}
+#: (H, angle mask or None, rows) of each measured row pattern (pose, velocity, both), by
+#: the pattern's bytes and, for the constant patterns, by the id of the array.
+_SELECTIONS: dict[bytes | int, tuple] = {}
 
 
 def _selection(rows: np.ndarray) -> tuple[np.ndarray, np.ndarray | None]:
     """H = the rows of I_12, and which of them are angles (None: none), kept per pattern."""
+    found = _SELECTIONS.get(id(rows))  # the row patterns of _state_measurement (constants)
+    if found is not None and found[2] is rows:
+        return found[0], found[1]
     rows = np.asarray(rows, dtype=int)
     key = rows.tobytes()
     found = _SELECTIONS.get(key)
@@ -140,10 +154,10 @@ def _selection(rows: np.ndarray) -> tuple[np.ndarray, np.ndarray | None]:
         H = np.eye(12)[rows]
         H.setflags(write=False)
         angle = np.isin(rows, _ANGLE_ROWS)
-        found = (H, angle if angle.any() else None)
+        found = (H, angle if angle.any() else None, rows)
         if len(_SELECTIONS) < 64:
             _SELECTIONS[key] = found
-    return found
+    return found[0], found[1]
 
 
 def _euler_angles(R: np.ndarray) -> tuple[float, float, float]:
@@ -274,7 +288,8 @@ def state_measurement(
 
 
 _POSE_ROWS, _VELOCITY_ROWS, _NO_ROWS = np.arange(0, 6), np.arange(6, 12), np.zeros(0, dtype=int)
-for _rows in (_POSE_ROWS, _VELOCITY_ROWS, _NO_ROWS):
+_ALL_ROWS, _NOTHING = np.arange(12), np.zeros(0)
+for _rows in (_POSE_ROWS, _VELOCITY_ROWS, _NO_ROWS, _ALL_ROWS, _NOTHING):
     _rows.setflags(write=False)
 
 
@@ -290,7 +305,7 @@ def _state_measurement(
     checked."""
     k = frame.index
     rows: list[np.ndarray] = []
-    z: list[np.ndarray] = []
+    z: list[float] = []  # y_k as floats: one array at the end
     var: list[np.ndarray] = []
     R_wc = fallback_rotation
     if frame.pose is not None:
@@ -305,7 +320,8 @@ def _state_measurement(
         roll, pitch, yaw = _euler_angles(R_wc)
         _check_pitch(pitch, f"frame {k}: measured pose")
         rows.append(_POSE_ROWS)
-        z.append(np.concatenate((p_wc, (pitch, yaw, roll))))
+        z += p_wc.tolist()
+        z += (pitch, yaw, roll)
         if variances:
             cov = as_matrix(pose.covariance, f"frame {k}: pose.covariance", (6, 6))
             E = euler_rate_matrix(roll, pitch)
@@ -331,15 +347,15 @@ def _state_measurement(
             if variances:
                 cov_v = R_wc @ cov_v @ R_wc.T
         rows.append(_VELOCITY_ROWS)
-        z.append(np.concatenate((v, w)))
+        z += v.tolist()
+        z += w.tolist()
         if variances:
             var.append(np.concatenate([np.diag(cov_v), np.diag(cov[:3, :3])]))
     if not rows:
         return StateMeasurement(_NO_ROWS, np.zeros(0), np.zeros(0))
     if len(rows) == 1:
-        return StateMeasurement(rows[0], z[0], var[0] if var else np.zeros(0))
-    both = np.concatenate(rows)
-    return StateMeasurement(both, np.concatenate(z), np.concatenate(var) if var else np.zeros(0))
+        return StateMeasurement(rows[0], np.array(z), var[0] if var else np.zeros(0))
+    return StateMeasurement(_ALL_ROWS, np.array(z), np.concatenate(var) if var else np.zeros(0))
 
 
 def state_to_tangent_jacobian(x: np.ndarray, *, world_frame_velocity: bool = False) -> np.ndarray:
@@ -373,3 +389,8 @@ def state_to_tangent_jacobian(x: np.ndarray, *, world_frame_velocity: bool = Fal
     else:
         J[9:12, LINEAR_VELOCITY] = np.eye(3)
     return J
+
+
+for _rows in (_POSE_ROWS, _VELOCITY_ROWS, _ALL_ROWS):
+    _H, _angle = _selection(_rows)
+    _SELECTIONS[id(_rows)] = (_H, _angle, _rows)
