@@ -188,6 +188,7 @@ class KalmanBaseline(Estimator):
         self._t_prev: float | None = None
         self._q_cache: dict[float, tuple[np.ndarray, np.ndarray]] = {}
         self._R_diag: tuple[np.ndarray | None, np.ndarray | None] = (None, None)
+        self._J = _J_TEMPLATE.copy()  # state_estimate's Jacobian, filled in place
 
     # -- the textbook steps ---------------------------------------------------------
 
@@ -339,7 +340,7 @@ class KalmanBaseline(Estimator):
             p, w, r = x[3:6].tolist()
             R_wc = _rotation(r, p, w)
             v = None  # the state's body velocity: twist = x[_TWIST_ROWS]
-            J = _J_TEMPLATE.copy()
+            J = self._J  # only its two blocks change (the rest: _J_TEMPLATE)
             J[0:3, 3:6] = _euler_rates_inverse(r, p, "euler_rate_matrix")
             J[3:6, 0:3] = R_wc.T
         cov = J @ self.P @ J.T

@@ -32,7 +32,6 @@ import gtsam
 import numpy as np
 
 from hvo_graph.errors import InputError
-from hvo_graph.geometry.rotation import nearest_rotation
 from hvo_graph.io._common import (
     PathLike,
     atomic_write_text,
@@ -40,7 +39,6 @@ from hvo_graph.io._common import (
     check_increasing,
     csv_body,
     first_line,
-    fmt,
     parse_table,
     read_text,
 )
@@ -108,15 +106,53 @@ def write_tum(path: PathLike, trajectory: Trajectory) -> None:
         InputError: on non-increasing times, NaN, or a matrix that is not a rotation.
     """
     t, R, p = _check_trajectory(trajectory)
-    lines = [_TUM_COMMENT]
-    for tk, Rk, pk in zip(t, R, p, strict=True):
-        # Rot3 needs an exactly orthonormal matrix for its quaternion.
-        q = gtsam.Rot3(nearest_rotation(Rk)).toQuaternion()
-        qv = np.array([q.x(), q.y(), q.z(), q.w()])
-        if qv[3] < 0:
-            qv = -qv
-        lines.append(" ".join(fmt(x) for x in (tk, *pk, *qv)))
+    q = _quaternions(R)
+    rows = (np.column_stack((t, p, q)) + 0.0).tolist()  # + 0.0: no "-0.0" (as fmt)
+    lines = [_TUM_COMMENT, *(" ".join(map(repr, row)) for row in rows)]
     atomic_write_text(path, "\n".join(lines) + "\n")
+
+
+def _quaternions(R: np.ndarray) -> np.ndarray:
+    """(K, 4) unit quaternions (qx, qy, qz, qw), qw >= 0, of (K, 3, 3) near-rotations.
+
+    The arithmetic of ``gtsam.Rot3(nearest_rotation(R)).toQuaternion()`` (Eigen's
+    rotation-matrix conversion, Shepperd's method), over all rows at once: each R is
+    projected onto SO(3) by SVD (Rot3 needs an exactly orthonormal matrix), then the
+    largest of w, x, y, z is taken from the diagonal and the others from the sums and
+    differences of the off-diagonal entries.
+    """
+    U, _, Vt = np.linalg.svd(R)
+    D = np.ones((len(R), 3))
+    D[:, 2] = np.sign(np.linalg.det(U @ Vt))
+    M = (U * D[:, None, :]) @ Vt
+    q = np.empty((len(R), 4))  # x, y, z, w
+    trace = M[:, 0, 0] + (M[:, 1, 1] + M[:, 2, 2])  # Eigen's order of the sum
+    positive = trace > 0
+    with np.errstate(divide="ignore", invalid="ignore"):
+        s = np.sqrt(trace + 1.0)
+        half = 0.5 / s
+        q[:, 3] = 0.5 * s
+        q[:, 0] = (M[:, 2, 1] - M[:, 1, 2]) * half
+        q[:, 1] = (M[:, 0, 2] - M[:, 2, 0]) * half
+        q[:, 2] = (M[:, 1, 0] - M[:, 0, 1]) * half
+        for i in (0, 1, 2):
+            j, k = (i + 1) % 3, (i + 2) % 3
+            diag = M[:, (0, 1, 2), (0, 1, 2)]
+            first = np.where(diag[:, 1] > diag[:, 0], 1, 0)
+            largest = np.where(diag[:, 2] > diag[np.arange(len(M)), first], 2, first)
+            rows = ~positive & (largest == i)
+            if not rows.any():
+                continue
+            m = M[rows]
+            s = np.sqrt(m[:, i, i] - m[:, j, j] - m[:, k, k] + 1.0)
+            half = 0.5 / s
+            out = np.empty((len(m), 4))
+            out[:, i] = 0.5 * s
+            out[:, 3] = (m[:, k, j] - m[:, j, k]) * half
+            out[:, j] = (m[:, j, i] + m[:, i, j]) * half
+            out[:, k] = (m[:, k, i] + m[:, i, k]) * half
+            q[rows] = out
+    return np.where(q[:, 3:4] < 0, -q, q)
 
 
 def read_tum(path: PathLike) -> Trajectory:
