@@ -147,8 +147,7 @@ def frontend_pair(points: int, frames: int, seed: int, repeat: int) -> Pair:
         front = MeasurementFrontEnd(
             scenario.camera, scenario.plane, FrontEndConfig(pixel_sigma=scenario.pixel_sigma)
         )
-        for obs in scenario.observations:
-            front.process(obs)
+        front.process_all(scenario.observations)  # as the command line measures
 
     n = len(scenario.observations)
     return Pair(

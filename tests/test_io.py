@@ -469,3 +469,29 @@ def test_written_files_have_ordinary_permissions(tmp_path):
     umask = os.umask(0)
     os.umask(umask)
     assert (tmp_path / "v.csv").stat().st_mode & 0o777 == 0o666 & ~umask
+
+
+def test_tum_quaternions_are_gtsams_digit_for_digit(tmp_path: Path) -> None:
+    """write_tum converts all rotations at once; every line equals the one gtsam's own
+    Rot3.toQuaternion gives (SVD projection first, qw >= 0), including rotations by pi,
+    the identity and slightly non-orthonormal input."""
+    rng = np.random.default_rng(4)
+    rotations = [gtsam.Rot3.Expmap(rng.normal(size=3) * s).matrix() for s in (0.01, 1, 3) * 400]
+    rotations += [np.eye(3), np.diag([1.0, -1, -1]), np.diag([-1.0, 1, -1]), np.diag([-1.0, -1, 1])]
+    rotations += [
+        gtsam.Rot3.Expmap(np.array(a) * (np.pi - 1e-9)).matrix()
+        for a in ([1, 0, 0], [0, 1, 0], [0, 0, 1], [0.6, 0.8, 0.0])
+    ]
+    R = np.array(rotations)
+    R[:50] += rng.normal(size=(50, 3, 3)) * 1e-9
+    t = np.arange(len(R)) / 30.0
+    p = rng.normal(size=(len(R), 3))
+    write_tum(tmp_path / "t.txt", Trajectory(t=t, rotations=R, positions=p))
+    lines = [s for s in (tmp_path / "t.txt").read_text().splitlines() if not s.startswith("#")]
+    for tk, Rk, pk, line in zip(t, R, p, lines, strict=True):
+        U, _, Vt = np.linalg.svd(Rk)
+        exact = U @ np.diag([1.0, 1.0, np.sign(np.linalg.det(U @ Vt))]) @ Vt
+        q = gtsam.Rot3(exact).toQuaternion()
+        qv = np.array([q.x(), q.y(), q.z(), q.w()])
+        qv = -qv if qv[3] < 0 else qv
+        assert line == " ".join(repr(float(x) + 0.0) for x in (tk, *pk, *qv))
