@@ -49,6 +49,7 @@ from hvo_graph.estimators.kalman_model import (
     _check_process_noise,
     _euler_rates,
     _euler_rates_inverse,
+    _prepared_measurements,
     _rotation,
     _selection,
     _state_measurement,
@@ -189,6 +190,7 @@ class KalmanBaseline(Estimator):
         self._q_cache: dict[float, tuple[np.ndarray, np.ndarray]] = {}
         self._R_diag: tuple[np.ndarray | None, np.ndarray | None] = (None, None)
         self._J = _J_TEMPLATE.copy()  # state_estimate's Jacobian, filled in place
+        self._prepared: dict[int, StateMeasurement] = {}  # y_k by id(frame), during run()
 
     # -- the textbook steps ---------------------------------------------------------
 
@@ -288,7 +290,10 @@ class KalmanBaseline(Estimator):
                 frame, world_frame_velocity=True, fallback_rotation=euler_to_rotation(r, p, w)
             )
         else:  # the paper's R_k presets read no measured variances
-            meas = _state_measurement(frame, False, None, variances=self.r_preset == "measured")
+            meas = self._prepared.pop(id(frame), None)  # (run: converted at once)
+            if meas is None:
+                measured = self.r_preset == "measured"
+                meas = _state_measurement(frame, False, None, variances=measured)
         if meas.rows.size:
             self.correct(meas.z, meas.rows, self._r_diagonal(meas, frame.index))
         _check_pitch(float(self.x[3]), f"frame {frame.index}: estimated state")
@@ -300,7 +305,14 @@ class KalmanBaseline(Estimator):
         if self.auto_process_noise and not self._online:
             fit = estimate_process_noise(frames, default=DEFAULT_ACCELERATION_SIGMA)
             self.process_noise = kalman_process_noise(fit.acceleration_sigma)
-        return super().run(frames)
+        if not self.world_frame_velocity and self.r_preset != "measured":
+            # y_k of every frame converted at once; update() takes each frame's own (the
+            # frame objects stay alive in ``frames``, so their ids stay theirs).
+            self._prepared = _prepared_measurements(frames)
+        try:
+            return super().run(frames)
+        finally:
+            self._prepared = {}
 
     def _own_noise(self, frame: FrameMeasurement) -> FrameMeasurement:
         """The frame as the filter uses it: with "measured" R, the pose's own-pixel
