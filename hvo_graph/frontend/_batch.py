@@ -151,11 +151,11 @@ def _inputs(
     """(t (F,), m (F, N, 3)) of the frames up to the first that ``process`` would refuse
     (time not increasing, pixels not finite); None when the pixels do not stack."""
     assert front._previous is not None
-    t = np.array([o.t for o in block], dtype=float)
-    t_prev = np.concatenate(([front._previous.t], t[:-1]))
     try:
+        t = np.array([o.t for o in block], dtype=float)
+        t_prev = np.concatenate(([float(front._previous.t)], t[:-1]))
         uv = np.array([o.uv for o in block], dtype=float)
-    except (ValueError, TypeError):
+    except (ValueError, TypeError):  # process() says what is wrong
         return None
     if uv.shape != (len(block), len(block[0].ids), 2):
         return None
