@@ -26,7 +26,7 @@ it lies between; the velocity covariance does not say so. See docs/method.md.
 
 from __future__ import annotations
 
-from collections.abc import Iterable, Sequence
+from collections.abc import Iterable
 from dataclasses import dataclass
 
 import numpy as np
@@ -245,10 +245,10 @@ class MeasurementFrontEnd:
         points = kept_points(ids, m, self._rejected_ids, self._sigma, self._normal, self.plane)
         return FrameMeasurement(obs.index, obs.t, pose, velocity, len(obs.ids), rejected, points)
 
-    def process_all(self, observations: Sequence[FrameObservations]) -> list[FrameMeasurement]:
+    def process_all(self, observations: Iterable[FrameObservations]) -> list[FrameMeasurement]:
         """:meth:`process` of every frame in order; stretches of frames that see the same
         tracks are measured at once (the same records to rounding, the same state after)."""
-        return measure_frames(self, observations, ROBUST_MIN_POINTS, HUBER)
+        return measure_frames(self, list(observations), ROBUST_MIN_POINTS, HUBER)
 
     @property
     def excluded_tracks(self) -> frozenset[int]:
@@ -492,4 +492,4 @@ def measure_sequence(
     if overrides:
         base = config or FrontEndConfig()
         config = FrontEndConfig(**{**base.__dict__, **overrides})
-    return MeasurementFrontEnd(camera, plane, config).process_all(list(observations))
+    return MeasurementFrontEnd(camera, plane, config).process_all(observations)
