@@ -20,7 +20,9 @@ Examples::
 from __future__ import annotations
 
 import argparse
+import signal
 import sys
+import threading
 from collections.abc import Sequence
 
 from hvo_graph.cli import batch, estimate, evaluate, plane, simulate
@@ -63,7 +65,12 @@ def main(argv: Sequence[str] | None = None) -> int:
     except SystemExit as exc:  # argparse: --help (0) or a usage error (2)
         return int(exc.code or 0)
     try:
-        return args.handler(args)
+        status = args.handler(args)
+        if argv is None and threading.current_thread() is threading.main_thread():
+            # The program itself, its output complete: a Ctrl-C from here on would only
+            # kill the exiting interpreter (status -2, a traceback-free but wrong code).
+            signal.signal(signal.SIGINT, signal.SIG_IGN)
+        return status
     except InputError as exc:
         print(f"{PROG}: error: {exc}", file=sys.stderr)
     except OSError as exc:
