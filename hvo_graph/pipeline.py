@@ -68,7 +68,8 @@ def make_estimator(method: str = "smoother", **options: object) -> Estimator:
             ("paper-noisy", "paper-noise-free", "measured"), ``lag`` (fixed-lag
             window, s), ``robust`` / ``robust_threshold``, ``covariance``,
             ``acceleration_sigma`` ("auto" or numbers), ``shared_reference_noise``,
-            ``velocity_factors``, ``relinearize_threshold``, ``relinearize_skip``.
+            ``velocity_factors``, ``motion_model``, ``relinearize_threshold``,
+            ``relinearize_skip``.
     Raises:
         InputError: an unknown method or option, or an option that does not apply
             to ``method`` (never silently ignored).
@@ -159,6 +160,8 @@ class EstimateRun:
             settings["acceleration_sigma"] = list(sigma)
             fit = getattr(getattr(est, "process_noise", None), "fit", None)
             settings["acceleration_sigma_fitted"] = fit is not None
+        if isinstance(getattr(est, "motion_model", None), str):
+            settings["motion_model"] = est.motion_model  # "auto" resolved
         if hasattr(est, "process_noise") and not hasattr(est, "acceleration_sigma"):
             settings["kalman_process_noise"] = [float(q) for q in est.process_noise]
             if settings.get("acceleration_sigma") == "auto":  # the filter's own Q_k

@@ -13,6 +13,7 @@ from hvo_graph.errors import InputError
 from hvo_graph.estimators.registry import (
     COMMAND_METHODS,
     KALMAN_R_PRESETS,
+    MOTION_MODEL_CHOICES,
     ROBUST_LOSSES,
     VELOCITY_FACTOR_POLICIES,
     check_applicable,
@@ -139,6 +140,13 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
         choices=VELOCITY_FACTOR_POLICIES,
         default=S,
         help="H_c twist factors: only where poses leave a gap (default) or all",
+    )
+    model.add_argument(
+        "--motion-model",
+        choices=MOTION_MODEL_CHOICES,
+        default=S,
+        help="smoother motion model: white-noise acceleration (wna), white-noise jerk "
+        "(wnj), or auto (default): the one the sequence's poses make more likely",
     )
     model.add_argument(
         "--independent-poses",
@@ -323,6 +331,7 @@ _OPTION_OF_DEST = {
     "robust_threshold": "robust_threshold",
     "acceleration_sigma": "acceleration_sigma",
     "velocity_factors": "velocity_factors",
+    "motion_model": "motion_model",
     "relinearize_threshold": "relinearize_threshold",
     "relinearize_skip": "relinearize_skip",
     "pixel_sigma": "pixel_sigma",

@@ -182,7 +182,7 @@ def _relative(N: np.ndarray, N0: np.ndarray, adjoint: np.ndarray | None) -> np.n
     """Covariance of [dY_k - Ad_k dY_0 (pose); dV_k] from Cov(d_k), Cov(d_0, d_k)."""
     if adjoint is None:
         return N
-    T = np.zeros((len(N), STATE, STATE))  # d_rel = d_k - T_k d_0
+    T = np.zeros_like(N)  # d_rel = d_k - T_k d_0
     T[:, :6, :6] = adjoint
     cross = T @ N0  # Cov(T d_0, d_k)
     out = N - cross - np.swapaxes(cross, 1, 2) + T @ N[0] @ np.swapaxes(T, 1, 2)
@@ -251,7 +251,8 @@ def error_covariances(
     bias_scale: float | None = BIAS_MODEL_SCALE,
     bias_window: float = BIAS_WINDOW_SECONDS,
 ) -> np.ndarray:
-    """(K, 12, 12) covariance of each frame's error [pose tangent; twist] (module docstring).
+    """(K, n, n) covariance of each frame's error [pose tangent; twist (; twist rate)]
+    (module docstring).
 
     Args:
         system: the linearized chain.
@@ -315,17 +316,17 @@ def dense_error_covariances(
 ) -> np.ndarray:
     """:func:`error_covariances` without the bias term, with dense matrices: O(K^3),
     a reference for tests."""
-    K = len(system.fixed)
-    n = K * STATE
+    K, size = system.fixed.shape[:2]
+    n = K * size
     diagonal, upper = system.information()
     Lam = np.zeros((n, n))
     M = np.zeros((n, n))
     for k in range(K):
-        s = slice(k * STATE, (k + 1) * STATE)
+        s = slice(k * size, (k + 1) * size)
         Lam[s, s] = diagonal[k]
         M[s, s] = system.measurement[k]
         if k + 1 < K:
-            t = slice((k + 1) * STATE, (k + 2) * STATE)
+            t = slice((k + 1) * size, (k + 2) * size)
             Lam[s, t] = upper[k]
             Lam[t, s] = upper[k].T
     P = np.linalg.inv(Lam)
@@ -333,15 +334,15 @@ def dense_error_covariances(
     T = np.eye(n)
     if anchor_adjoint is not None:
         for k in range(K):
-            T[k * STATE : k * STATE + 6, :6] -= anchor_adjoint[k]
+            T[k * size : k * size + 6, :6] -= anchor_adjoint[k]
     TP = T @ P
     C = TP @ M @ TP.T + (TP @ Y) @ (TP @ Y).T
-    out = np.array([C[k * STATE : (k + 1) * STATE, k * STATE : (k + 1) * STATE] for k in range(K)])
+    out = np.array([C[k * size : (k + 1) * size, k * size : (k + 1) * size] for k in range(K)])
     model = P - P @ M @ P
     if anchor_adjoint is not None:
         spread = model[:6, :6]
         out[:, :6, :6] += anchor_adjoint @ spread @ np.swapaxes(anchor_adjoint, 1, 2)
     blocks = np.array(
-        [model[k * STATE : (k + 1) * STATE, k * STATE : (k + 1) * STATE] for k in range(K)]
+        [model[k * size : (k + 1) * size, k * size : (k + 1) * size] for k in range(K)]
     )
     return out + _bridged(blocks, system)

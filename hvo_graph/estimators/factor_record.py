@@ -21,7 +21,7 @@ import gtsam
 import numpy as np
 from gtsam.symbol_shorthand import V, X
 
-from hvo_graph.estimators.error_covariance import STATE, ChainSystem, error_covariances
+from hvo_graph.estimators.error_covariance import ChainSystem, error_covariances
 
 
 @dataclass
@@ -43,6 +43,12 @@ class FactorRecord:
     measurement: list[gtsam.NonlinearFactor] = field(default_factory=list)
     shared: list[_Shared] = field(default_factory=list)
 
+    @property
+    def rates(self) -> bool:
+        """Whether the frames carry a twist rate A(k) (white-noise jerk: 18 states)."""
+        keys = self.motion[0].keys() if self.motion else []
+        return any(gtsam.Symbol(key).chr() == ord("a") for key in keys)
+
     def add_shared(
         self,
         factor: gtsam.NonlinearFactor,
@@ -59,21 +65,25 @@ class FactorRecord:
     def system(
         self, values: gtsam.Values, indices: Sequence[int], times: Sequence[float]
     ) -> ChainSystem:
-        """The linearized chain at ``values`` over the frames ``indices`` (in order)."""
+        """The linearized chain at ``values`` over the frames ``indices`` (in order);
+        per frame [pose tangent; twist] (and the twist rate with :attr:`rates`)."""
         K = len(indices)
+        state = 18 if self.rates else 12
         slot = {}
         for n, k in enumerate(indices):
             slot[X(k)] = (n, 0)
             slot[V(k)] = (n, 6)
+            if self.rates:
+                slot[gtsam.symbol_shorthand.A(k)] = (n, 12)
         columns = _shared_columns(self.shared)
         out = {
-            "motion_diagonal": np.zeros((K, STATE, STATE)),
-            "motion_upper": np.zeros((max(K - 1, 0), STATE, STATE)),
-            "measurement_upper": np.zeros((max(K - 1, 0), STATE, STATE)),
-            "fixed": np.zeros((K, STATE, STATE)),
-            "measurement": np.zeros((K, STATE, STATE)),
-            "shared": np.zeros((K, STATE, max(2 * len(columns), 1))),
-            "gradient": np.zeros((K, STATE)),
+            "motion_diagonal": np.zeros((K, state, state)),
+            "motion_upper": np.zeros((max(K - 1, 0), state, state)),
+            "measurement_upper": np.zeros((max(K - 1, 0), state, state)),
+            "fixed": np.zeros((K, state, state)),
+            "measurement": np.zeros((K, state, state)),
+            "shared": np.zeros((K, state, max(2 * len(columns), 1))),
+            "gradient": np.zeros((K, state)),
         }
         for factor in self.motion:
             _accumulate(factor, values, slot, out["motion_diagonal"], out["motion_upper"])
@@ -110,11 +120,14 @@ class FactorRecord:
         for k, (pose, twist) in zip(indices, finals, strict=True):
             values.insert(X(k), pose)
             values.insert(V(k), np.asarray(twist, dtype=float))
+            if self.rates:  # every factor is linear in A: its value changes no information
+                values.insert(gtsam.symbol_shorthand.A(k), np.zeros(6))
         adjoint = None
         if anchored:
             anchor = finals[0][0]
             adjoint = np.array([pose.between(anchor).AdjointMap() for pose, _ in finals])
-        return error_covariances(self.system(values, indices, times), anchor_adjoint=adjoint)
+        covariance = error_covariances(self.system(values, indices, times), anchor_adjoint=adjoint)
+        return covariance[:, :12, :12]
 
 
 def _shared_columns(shared: Sequence[_Shared]) -> dict[int, int]:

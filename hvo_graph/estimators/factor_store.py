@@ -29,11 +29,10 @@ from collections.abc import Callable, Iterator, Sequence
 
 import gtsam
 import numpy as np
-from gtsam.symbol_shorthand import V, X
+from gtsam.symbol_shorthand import A, V, X
 
-from hvo_graph.estimators.factors import motion_factor
 from hvo_graph.estimators.least_squares import levenberg_marquardt
-from hvo_graph.estimators.process_noise import MotionNoise
+from hvo_graph.estimators.motion_model import MOTION_MODELS, MotionFactors
 
 __all__ = [
     "CHUNK_FRAMES",
@@ -93,11 +92,13 @@ class FactorStore:
         self.noise = noise
         self.keeps = noise is not None
         self._index = _Rows(1, np.int64)  # frame index by position
-        self._motion = _Rows(4)  # position of the later frame, dt, s_w, s_v
+        self._motion = _Rows(5)  # position of the later frame, dt, s_w, s_v, model
         self._prior = _Rows(1 + 12 + 36)  # position, R (row-major) and t, covariance
         self._span = _Rows(2, np.int64)  # oldest and newest position of each other factor
         self._other: list[gtsam.NonlinearFactor] = []
-        self._noise_models: dict[tuple[float, float], MotionNoise] = {}
+        self._motion_factors = MotionFactors()
+        #: Whether any frame has a twist rate A(k) (the white-noise-jerk model).
+        self.rates = False
 
     def __len__(self) -> int:
         return self._index.size
@@ -109,12 +110,13 @@ class FactorStore:
             return
         self._index.append([index])
 
-    def add_motion(self, dt: float, sigma: tuple[float, float]) -> None:
-        """The motion and twist random-walk factors between the previous frame and the
-        newest one, over ``dt`` with acceleration sigma (s_w, s_v)."""
+    def add_motion(self, dt: float, sigma: tuple[float, float], model: str = "wna") -> None:
+        """The motion factors of ``model`` (:mod:`.motion_model`) between the previous
+        frame and the newest one, over ``dt`` with strengths sigma (s_w, s_v)."""
         if not self.keeps:
             return
-        self._motion.append([len(self) - 1, dt, *sigma])
+        self.rates = self.rates or model == "wnj"
+        self._motion.append([len(self) - 1, dt, *sigma, MOTION_MODELS.index(model)])
 
     def add_pose_prior(self, pose: gtsam.Pose3, covariance: np.ndarray) -> None:
         """An H_d pose factor against the world on the newest frame."""
@@ -153,16 +155,14 @@ class FactorStore:
         graph = gtsam.NonlinearFactorGraph()
         lo, hi = first, stop
         motion = self._motion.view()
-        for p, dt, s_w, s_v in motion[(motion[:, 0] >= first) & (motion[:, 0] < stop + 1)]:
+        for p, dt, s_w, s_v, model in motion[(motion[:, 0] >= first) & (motion[:, 0] < stop + 1)]:
             p = int(p)
             previous, k = int(indices[p - 1]), int(indices[p])
             sigma = (float(s_w), float(s_v))
-            noise = self._noise_models.get(sigma)
-            if noise is None:
-                noise = self._noise_models[sigma] = MotionNoise(sigma)
-            motion_noise, walk_noise = noise(float(dt))
-            graph.add(motion_factor(X(previous), X(k), V(previous), V(k), float(dt), motion_noise))
-            graph.add(gtsam.BetweenFactorVector(V(previous), V(k), np.zeros(6), walk_noise))
+            for factor in self._motion_factors(
+                MOTION_MODELS[int(model)], previous, k, float(dt), sigma
+            ):
+                graph.add(factor)
             lo, hi = min(lo, p - 1), max(hi, p + 1)
         prior = self._prior.view()
         for row in prior[(prior[:, 0] >= first) & (prior[:, 0] < stop)]:
@@ -181,11 +181,12 @@ class FactorStore:
         return self.graph(0, len(self))[0]
 
 
-def _frame_values(source: gtsam.Values, indices: np.ndarray) -> gtsam.Values:
+def _frame_values(source: gtsam.Values, indices: np.ndarray, rates: bool) -> gtsam.Values:
     values = gtsam.Values()
     for k in indices:
         values.insert(X(int(k)), source.atPose3(X(int(k))))
-        values.insert(V(int(k)), source.atVector(V(int(k))))
+        for key in (V(int(k)), A(int(k))) if rates else (V(int(k)),):
+            values.insert(key, source.atVector(key))
     return values
 
 
@@ -253,17 +254,21 @@ def _solve_range(
     """Solve the frames at positions [first, stop) with every other frame held; update
     ``values``; return the largest move (any tangent coordinate)."""
     graph, touched = store.graph(first, stop)
-    chunk_values = _frame_values(values, indices[touched.start : touched.stop])
+    chunk_values = _frame_values(values, indices[touched.start : touched.stop], store.rates)
     outside = np.concatenate([indices[touched.start : first], indices[stop : touched.stop]])
-    held = [key for k in outside for key in (X(int(k)), V(int(k)))]
+    symbols = (X, V, A) if store.rates else (X, V)
+    held = [symbol(int(k)) for k in outside for symbol in symbols]
     solved, _ = levenberg_marquardt(graph, chunk_values, max_iterations=max_iterations, fixed=held)
     moved = chunk_values.localCoordinates(solved)
     largest = 0.0
     for k in indices[first:stop]:
-        x, v = X(int(k)), V(int(k))
-        largest = max(largest, float(np.abs(moved.at(x)).max()), float(np.abs(moved.at(v)).max()))
-        values.update(x, solved.atPose3(x))
-        values.update(v, solved.atVector(v))
+        for symbol in symbols:
+            key = symbol(int(k))
+            largest = max(largest, float(np.abs(moved.at(key)).max()))
+            if symbol is X:
+                values.update(key, solved.atPose3(key))
+            else:
+                values.update(key, solved.atVector(key))
     return largest
 
 

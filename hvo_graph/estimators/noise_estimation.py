@@ -27,14 +27,14 @@ the smoother would trust the motion model without limit.
 
 from __future__ import annotations
 
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 
 import gtsam
 import numpy as np
 
 from hvo_graph.errors import InputError
-from hvo_graph.estimators.process_noise import acceleration_sigma
+from hvo_graph.estimators.process_noise import DEFAULT_JERK_SIGMA, acceleration_sigma
 from hvo_graph.types import FrameMeasurement
 
 #: Lower bound of q_w and q_v (rad^2 s^-3, m^2 s^-3): a random-walk twist change of
@@ -75,11 +75,14 @@ class ProcessNoiseEstimate:
         acceleration_sigma: (s_w, s_v) = (sqrt(q_w), sqrt(q_v)), rad s^-3/2 and m s^-3/2.
         log_likelihood: log p(z | Q) at the optimum (nats).
         poses: number of pose measurements used.
+        model: the motion model fitted, "wna" or "wnj" (then the sigmas are the
+            jerk's, rad s^-5/2 and m s^-5/2).
     """
 
     acceleration_sigma: tuple[float, float]
     log_likelihood: float
     poses: int
+    model: str = "wna"
 
 
 def unrolled_poses(
@@ -187,6 +190,64 @@ def log_likelihood(
     return ll
 
 
+def jerk_log_likelihood(
+    t: np.ndarray,
+    s: np.ndarray,
+    C: np.ndarray,
+    q_w: np.ndarray,
+    q_v: np.ndarray,
+    gate: float = np.inf,
+) -> np.ndarray:
+    """log p(s_1..K | q_w, q_v) of the 18-state white-noise-jerk model, M pairs at once.
+
+    State [s (6); V (6); A (6)]: s' = s + dt V + dt^2/2 A, V' = V + dt A, A' = A + w,
+    with the exact discretisation Q [[dt^5/20, dt^4/8, dt^3/6], [dt^4/8, dt^3/3,
+    dt^2/2], [dt^3/6, dt^2/2, dt]] (q_w, q_v now jerk densities, rad^2 s^-5 and
+    m^2 s^-5). Priors, gate and return as :func:`log_likelihood`; the twist rate
+    starts with a broad prior too (100 rad/s^2, m/s^2).
+    """
+    m = len(q_w)
+    q = np.concatenate((np.repeat(q_w[:, None], 3, 1), np.repeat(q_v[:, None], 3, 1)), axis=1)
+    x = np.zeros((m, 18))
+    x[:, :6] = s[0]
+    P = np.zeros((m, 18, 18))
+    P[:, :6, :6] = C[0]
+    P[:, 6:, 6:] = 1e4 * np.eye(12)
+    ll = np.zeros(m)
+    constant = 6.0 * np.log(2.0 * np.pi)
+    eye = np.eye(6)
+    for k in range(1, len(t)):
+        dt = t[k] - t[k - 1]
+        F = np.kron(np.array([[1.0, dt, 0.5 * dt * dt], [0.0, 1.0, dt], [0.0, 0.0, 1.0]]), eye)
+        unit = np.array(
+            [
+                [dt**5 / 20.0, dt**4 / 8.0, dt**3 / 6.0],
+                [dt**4 / 8.0, dt**3 / 3.0, dt**2 / 2.0],
+                [dt**3 / 6.0, dt**2 / 2.0, dt],
+            ]
+        )
+        x = x @ F.T
+        P = F @ P @ F.T
+        P += np.kron(unit, eye)[None] * np.tile(q, 3)[:, None, :]  # Q_k = unit (x) diag(q)
+        S = P[:, :6, :6] + C[k][None]
+        y = s[k][None] - x[:, :6]
+        L = np.linalg.cholesky(S)
+        L_inv = _lower_inverse(L)
+        z = np.einsum("mij,mj->mi", L_inv, y)
+        d2 = np.sum(z * z, axis=1)
+        ll -= 0.5 * (
+            np.minimum(d2, gate) + 2.0 * np.log(np.diagonal(L, axis1=1, axis2=2)).sum(axis=1)
+        )
+        ll -= 0.5 * constant
+        gain = (P[:, :, :6] @ np.transpose(L_inv, (0, 2, 1))) @ L_inv
+        gain[d2 > gate] = 0.0
+        x += np.einsum("mij,mj->mi", gain, y)
+        P -= gain @ P[:, :6, :]
+        P += P.transpose(0, 2, 1).copy()
+        P *= 0.5
+    return ll
+
+
 def _lower_inverse(L: np.ndarray) -> np.ndarray:
     """(M, n, n) inverses of lower-triangular L (M, n, n) by forward substitution: n
     vectorised steps instead of M calls of LAPACK (M small systems per time step)."""
@@ -206,8 +267,9 @@ def estimate_process_noise(
     default: tuple[float, float],
     grid: int = 10,
     refinements: int = 2,
+    model: str = "wna",
 ) -> ProcessNoiseEstimate:
-    """(s_w, s_v) of the WNA motion model from the pose measurements: the maximum of the
+    """(s_w, s_v) of the motion model from the pose measurements: the maximum of the
     likelihood, then the upper end of each density's 95 % interval (:data:`INTERVAL_DROP`).
 
     Args:
@@ -215,30 +277,49 @@ def estimate_process_noise(
         default: (s_w, s_v) returned when fewer than :data:`MIN_POSES` poses exist.
         grid: points per axis of the first (log-spaced) grid.
         refinements: times the grid is refined (x3 finer) around the optimum.
+        model: "wna" (:func:`log_likelihood`), "wnj" (:func:`jerk_log_likelihood`), or
+            "auto": both, and the one with the larger maximised likelihood (both have
+            two parameters, so the likelihoods compare directly).
     Returns:
-        The estimate; ``poses`` = 0 and the default when there was too little data.
+        The estimate; ``poses`` = 0 and the default when there was too little data
+        (``model`` then "wnj" for "auto").
     """
     t, s, C = unrolled_poses(frames)
     if len(t) < MIN_POSES:
-        return ProcessNoiseEstimate(default, float("nan"), 0)
+        return ProcessNoiseEstimate(default, float("nan"), 0, "wnj" if model == "auto" else model)
     t, s, C = t[-MAX_POSES:], s[-MAX_POSES:], C[-MAX_POSES:]
+    fits = [
+        _fit(t, s, C, name, grid, refinements)
+        for name in (("wna", "wnj") if model == "auto" else (model,))
+    ]
+    return max(fits, key=lambda fit: fit.log_likelihood)
+
+
+_LIKELIHOODS = {"wna": "log_likelihood", "wnj": "jerk_log_likelihood"}
+
+
+def _fit(
+    t: np.ndarray, s: np.ndarray, C: np.ndarray, model: str, grid: int, refinements: int
+) -> ProcessNoiseEstimate:
+    likelihood = globals()[_LIKELIHOODS[model]]
     lo, hi = np.log10(MIN_SPECTRAL_DENSITY), np.log10(MAX_SPECTRAL_DENSITY)
     axis_w = axis_v = np.linspace(lo, hi, grid)
     step = axis_w[1] - axis_w[0]
     for _ in range(refinements + 1):
         A, B = np.meshgrid(axis_w, axis_v, indexing="ij")
-        ll = log_likelihood(t, s, C, 10.0 ** A.ravel(), 10.0 ** B.ravel(), OUTLIER_GATE)
+        ll = likelihood(t, s, C, 10.0 ** A.ravel(), 10.0 ** B.ravel(), OUTLIER_GATE)
         i = int(np.argmax(ll))
         best, best_ll = (float(A.ravel()[i]), float(B.ravel()[i])), float(ll[i])
         step /= 3.0
         axis_w = np.clip(best[0] + step * np.arange(-3, 4), lo, hi)
         axis_v = np.clip(best[1] + step * np.arange(-3, 4), lo, hi)
-    upper = _upper_interval_ends(t, s, C, best, best_ll, hi)
+    upper = _upper_interval_ends(likelihood, t, s, C, best, best_ll, hi)
     sigma = (float(10.0 ** (upper[0] / 2)), float(10.0 ** (upper[1] / 2)))
-    return ProcessNoiseEstimate(sigma, best_ll, len(t))
+    return ProcessNoiseEstimate(sigma, best_ll, len(t), model)
 
 
 def _upper_interval_ends(
+    likelihood: Callable[..., np.ndarray],
     t: np.ndarray,
     s: np.ndarray,
     C: np.ndarray,
@@ -254,7 +335,7 @@ def _upper_interval_ends(
         trial = np.clip(best[axis] + steps, None, hi)
         other = np.full(len(trial), best[1 - axis])
         q_w, q_v = (trial, other) if axis == 0 else (other, trial)
-        ll = log_likelihood(t, s, C, 10.0**q_w, 10.0**q_v, OUTLIER_GATE)
+        ll = likelihood(t, s, C, 10.0**q_w, 10.0**q_v, OUTLIER_GATE)
         inside = np.flatnonzero(ll >= best_ll - INTERVAL_DROP)
         ends.append(float(trial[inside.max()]) if inside.size else best[axis])
     return ends[0], ends[1]
@@ -266,7 +347,7 @@ FIRST_REFIT: int = 30
 
 
 class ProcessNoiseSchedule:
-    """The (s_w, s_v) a streaming estimator uses: fixed, or fitted to the data ("auto").
+    """The motion model and (s_w, s_v) a streaming estimator uses: fixed, or fitted ("auto").
 
     With "auto", :meth:`fit_all` fits them on a whole sequence known in advance;
     otherwise :meth:`observe` refits on the frames seen so far after
@@ -275,19 +356,33 @@ class ProcessNoiseSchedule:
     Args:
         value: "auto", or one or two numbers (angular, linear; see
             :func:`~hvo_graph.estimators.process_noise.acceleration_sigma`).
-        default: (s_w, s_v) until the first fit (and when a fit has too few poses).
+        default: (s_w, s_v) of the WNA model until the first fit (and when a fit has
+            too few poses).
+        model: "wna", "wnj" or "auto". "auto" with fitted values: the model of the
+            larger maximised likelihood, chosen by :meth:`fit_all`; streamed frames
+            (no whole sequence to choose on) keep "wnj". "auto" with fixed values:
+            "wna" (the values are then acceleration strengths, as they always were).
     """
 
-    def __init__(self, value: float | Sequence[float] | str, default: tuple[float, float]):
+    def __init__(
+        self,
+        value: float | Sequence[float] | str,
+        default: tuple[float, float],
+        model: str = "wna",
+    ):
         self.auto = isinstance(value, str)
         if self.auto and value != "auto":
             raise InputError(
                 "acceleration_sigma: expected 'auto' or one or two finite numbers > 0 "
                 f"(angular, linear), got {value!r}"
             )
+        self._choose = model == "auto" and self.auto
+        #: The motion model in force, "wna" or "wnj".
+        self.model = ("wnj" if self.auto else "wna") if model == "auto" else model
+        self.default = DEFAULT_JERK_SIGMA if self.model == "wnj" else default
+        self._wna_default = default
         #: (s_w, s_v) in force.
-        self.sigma = default if self.auto else acceleration_sigma(value)  # type: ignore[arg-type]
-        self.default = default
+        self.sigma = self.default if self.auto else acceleration_sigma(value)  # type: ignore[arg-type]
         #: The latest maximum-likelihood fit (None with fixed values or before a fit).
         self.fit: ProcessNoiseEstimate | None = None
         self._seen: list[FrameMeasurement] = []
@@ -296,7 +391,7 @@ class ProcessNoiseSchedule:
     def fit_all(self, frames: Sequence[FrameMeasurement]) -> None:
         """Fit on the whole sequence (no refits afterwards); nothing with fixed values."""
         if self.auto:
-            self._fit(frames)
+            self._fit(frames, "auto" if self._choose else self.model)
             self._next = None
 
     def observe(self, frame: FrameMeasurement) -> bool:
@@ -307,11 +402,12 @@ class ProcessNoiseSchedule:
         if len(self._seen) < self._next:
             return False
         self._next *= 2
-        return self._fit(self._seen)
+        return self._fit(self._seen, self.model)
 
-    def _fit(self, frames: Sequence[FrameMeasurement]) -> bool:
-        fit = estimate_process_noise(frames, default=self.default)
+    def _fit(self, frames: Sequence[FrameMeasurement], model: str) -> bool:
+        fit = estimate_process_noise(frames, default=self.default, model=model)
         if not fit.poses:
             return False
-        self.fit, self.sigma = fit, fit.acceleration_sigma
+        self.fit, self.sigma, self.model = fit, fit.acceleration_sigma, fit.model
+        self.default = DEFAULT_JERK_SIGMA if self.model == "wnj" else self._wna_default
         return True

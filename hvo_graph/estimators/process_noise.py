@@ -40,6 +40,11 @@ DEFAULT_ACCELERATION_SIGMA: tuple[float, float] = (
     math.sqrt(DEFAULT_SPECTRAL_DENSITY),
 )
 
+#: Default white-noise-jerk strengths (s_w, s_v) of the smoother's WNA alternative
+#: (rad s^-5/2, m s^-5/2), by the same rule: q = j_max^2 dt with j_max = 0.6
+#: (m/s^3, rad/s^3; the paper scenario's largest jerk is 0.53) and dt = 1/30 s.
+DEFAULT_JERK_SIGMA: tuple[float, float] = (math.sqrt(0.36 / 30.0), math.sqrt(0.36 / 30.0))
+
 #: Default Q_k scalars s_i = (sigma_x, sigma_y, sigma_z, sigma_p, sigma_w, sigma_r) of
 #: the Kalman filter: the spectral density driving each pair (i, i+6), the same q.
 DEFAULT_PROCESS_NOISE: np.ndarray = np.full(6, DEFAULT_SPECTRAL_DENSITY)

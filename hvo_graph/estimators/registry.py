@@ -23,6 +23,7 @@ from typing import TYPE_CHECKING
 from hvo_graph.errors import InputError
 from hvo_graph.estimators.choices import DEFAULT_LAG as DEFAULT_LAG
 from hvo_graph.estimators.choices import KALMAN_R_PRESETS as KALMAN_R_PRESETS
+from hvo_graph.estimators.choices import MOTION_MODEL_CHOICES as MOTION_MODEL_CHOICES
 from hvo_graph.estimators.choices import ROBUST_LOSSES as ROBUST_LOSSES
 from hvo_graph.estimators.choices import SOLVERS as SOLVERS
 from hvo_graph.estimators.choices import VELOCITY_FACTOR_POLICIES as VELOCITY_FACTOR_POLICIES
@@ -49,6 +50,8 @@ class EstimatorOptions:
         shared_reference_noise: the smoothers keep the reference frame's shared
             pixel noise out of the H_d factors and in the marginals.
         velocity_factors: "gaps" or "all" (:data:`VELOCITY_FACTOR_POLICIES`).
+        motion_model: the smoother's motion model, "auto", "wna" or "wnj"
+            (:data:`MOTION_MODEL_CHOICES`).
         relinearize_threshold: ISAM2's pose relinearization threshold (None: default).
         relinearize_skip: ISAM2 checks relinearization every this many updates
             (None: default).
@@ -64,6 +67,7 @@ class EstimatorOptions:
     acceleration_sigma: float | tuple[float, float] | str = "auto"
     shared_reference_noise: bool = True
     velocity_factors: str = "gaps"
+    motion_model: str = "auto"
     relinearize_threshold: float | None = None
     relinearize_skip: int | None = None
 
@@ -154,6 +158,7 @@ def _graph(method: Method, options: EstimatorOptions) -> Estimator:
         acceleration_sigma=options.acceleration_sigma,
         shared_reference_noise=options.shared_reference_noise,
         velocity_factors=options.velocity_factors,
+        motion_model=options.motion_model,
         robust=options.robust,
         robust_threshold=options.robust_threshold,
         compute_covariance=options.covariance,
@@ -187,6 +192,7 @@ _GRAPH = (
     "acceleration_sigma",
     "shared_reference_noise",
     "velocity_factors",
+    "motion_model",
     "online",
 )
 _ISAM2 = ("relinearize_threshold", "relinearize_skip")

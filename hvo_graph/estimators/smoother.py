@@ -9,8 +9,8 @@ and the reasons for every default):
   H_d pose against frame k0 carries one shared draw of that frame's pixel noise
   (``shared_reference_noise``): the prior's covariance is that noise, so X(k0)
   estimates the shared offset, and poses are reported relative to it,
-  X_k = X(k0)^-1 X(k) (without the split: standard deviation ``world_sigma``).
-  A weak zero-mean prior on V(k0) (``initial_twist_sigma``);
+  X_k = X(k0)^-1 X(k) (else: std ``world_sigma``). Weak zero-mean priors on V(k0)
+  (and A(k0)) (``initial_twist_sigma``);
 - pose measurement from the discrete homography H_d: with reference 0 (W) a
   ``PriorFactorPose3`` on X(k); with a keyframe reference r a between factor
   X(r) -> X(k); noise ``Gaussian.Covariance`` of the frame's own pixels
@@ -20,18 +20,14 @@ and the reasons for every default):
   time average of the piecewise-linear twist ((V(k-1) + V(k)) / 2 for the usual
   interval), full covariance; only where two H_d poses do not already span the
   interval (the flow and those poses are made of the same pixels);
-- motion: :func:`~hvo_graph.estimators.factors.motion_factor`,
-  Log(X(k-1)^-1 X(k)) = dt (V(k-1) + V(k)) / 2 with the Brownian-bridge
-  covariance Q dt^3 / 12 of the white-noise-acceleration model;
-- twist random walk: ``BetweenFactorVector`` V(k-1) -> V(k), zero mean,
-  covariance Q dt; Q = diag(s_w^2 I_3, s_v^2 I_3) from ``acceleration_sigma``,
-  by default the maximum-likelihood values of the sequence
-  (:mod:`hvo_graph.estimators.noise_estimation`);
+- motion (``motion_model``, :mod:`~hvo_graph.estimators.motion_model`): white-noise
+  jerk (a third variable A(k), the twist rate) or white-noise acceleration, by
+  default the one the poses make more likely; Q = diag(s_w^2 I_3, s_v^2 I_3) from
+  ``acceleration_sigma``, by default fitted (:mod:`.noise_estimation`);
 - optional robust loss (Huber or Cauchy) on the two measurement factors.
 
-Solvers (``"isam2"``: ``--method smoother``; ``"batch"``; ``"fixed-lag"``): the
-back ends of :mod:`hvo_graph.estimators.solvers`, whose docstrings say what the
-online and the final (:meth:`trajectory`) estimates of each are.
+Solvers ("isam2": ``--method smoother``; "batch"; "fixed-lag"): the back ends of
+:mod:`hvo_graph.estimators.solvers` (what their online and final estimates are).
 """
 
 from __future__ import annotations
@@ -42,7 +38,7 @@ from collections.abc import Iterable, Sequence
 
 import gtsam
 import numpy as np
-from gtsam.symbol_shorthand import V, X
+from gtsam.symbol_shorthand import A, V, X
 
 from hvo_graph.errors import InputError, as_integer, as_number
 from hvo_graph.estimators import measurement_checks
@@ -53,12 +49,11 @@ from hvo_graph.estimators.factors import (
     _mean_velocity_factor,
     keyframe_pose_factor,
     measurement_noise,
-    motion_factor,
 )
 from hvo_graph.estimators.measurement_checks import CheckedFrame, checked_frame, poses_span
+from hvo_graph.estimators.motion_model import MotionFactors, check_motion_model, twist_keys
 from hvo_graph.estimators.noise_estimation import ProcessNoiseSchedule
-from hvo_graph.estimators.process_noise import DEFAULT_ACCELERATION_SIGMA, MotionNoise
-from hvo_graph.estimators.process_noise import acceleration_sigma as check_acceleration_sigma
+from hvo_graph.estimators.process_noise import DEFAULT_ACCELERATION_SIGMA
 from hvo_graph.estimators.solvers import (
     MARGINALIZATION_BLOCKS,
     Backend,
@@ -116,10 +111,10 @@ class FactorGraphSmoother(Estimator):
     Args:
         solver: "isam2" (default; ``--method smoother``), "batch" or "fixed-lag".
         lag: window of the fixed-lag smoother, seconds (> 0; used by "fixed-lag").
-        acceleration_sigma: (s_w, s_v), square roots of the white-noise
-            acceleration spectral densities, angular (rad s^-3/2) and linear
-            (m s^-3/2); a single number sets both. "auto" (default): the
-            maximum-likelihood values of the sequence
+        acceleration_sigma: (s_w, s_v), square roots of the spectral densities of
+            the motion model's white noise, angular and linear (acceleration: rad
+            s^-3/2, m s^-3/2; jerk: rad s^-5/2, m s^-5/2); a single number sets
+            both. "auto" (default): the maximum-likelihood values of the sequence
             (:func:`~hvo_graph.estimators.noise_estimation.estimate_process_noise`):
             :meth:`run` fits them on the whole sequence first; frame-by-frame
             :meth:`update` starts from :data:`DEFAULT_ACCELERATION_SIGMA` and refits
@@ -149,6 +144,11 @@ class FactorGraphSmoother(Estimator):
         relinearize_threshold: ISAM2 relinearizes a variable whose delta exceeds this.
         relinearize_skip: ISAM2 checks for relinearization every this many updates.
         max_iterations: most Levenberg-Marquardt iterations ("batch").
+        motion_model: "wnj" (white-noise jerk), "wna" (white-noise acceleration)
+            or "auto" (default): with fitted ``acceleration_sigma``, the model of
+            the larger maximised likelihood on the whole sequence (:meth:`run`;
+            streamed frames keep "wnj"); with fixed values, "wna". In force:
+            :attr:`motion_model`.
     """
 
     name = "smoother"
@@ -169,6 +169,7 @@ class FactorGraphSmoother(Estimator):
         relinearize_threshold: float = DEFAULT_RELINEARIZE_THRESHOLD,
         relinearize_skip: int = DEFAULT_RELINEARIZE_SKIP,
         max_iterations: int = 100,
+        motion_model: str = "auto",
     ) -> None:
         super().__init__()
         if solver not in SOLVERS:
@@ -176,10 +177,13 @@ class FactorGraphSmoother(Estimator):
         self.solver = solver
         self.name = SOLVERS[solver]
         self.lag = as_number(lag, "lag", above=0.0)
-        #: Whether the process noise is fitted to the data ("auto").
         #: The process noise in force: fixed, or fitted ("auto"; ``.fit`` has the fit).
-        self.process_noise = ProcessNoiseSchedule(acceleration_sigma, DEFAULT_ACCELERATION_SIGMA)
-        self._set_acceleration_sigma(self.process_noise.sigma)
+        self.process_noise = ProcessNoiseSchedule(
+            acceleration_sigma, DEFAULT_ACCELERATION_SIGMA, check_motion_model(motion_model)
+        )
+        self._motion = MotionFactors()
+        #: (s_w, s_v) of the motion factors added from now on.
+        self.acceleration_sigma = self.process_noise.sigma
         self.shared_reference_noise = bool(shared_reference_noise)
         if velocity_factors not in VELOCITY_FACTOR_POLICIES:
             raise InputError(
@@ -245,20 +249,17 @@ class FactorGraphSmoother(Estimator):
         """Levenberg-Marquardt iterations of the last batch solve (0 for the other solvers)."""
         return getattr(self.backend, "iterations", 0)
 
-    # -- noise models -----------------------------------------------------------------------
-
-    def _set_acceleration_sigma(self, value: float | Sequence[float]) -> None:
-        #: (s_w, s_v) of the motion factors added from now on.
-        self.acceleration_sigma = check_acceleration_sigma(value)
-        #: diag(Q): white-noise-acceleration spectral densities, [rot x3; trans x3].
-        self._process_noise = MotionNoise(self.acceleration_sigma)
+    @property
+    def motion_model(self) -> str:
+        """The motion model in force, "wna" or "wnj" (fixed once a frame is in)."""
+        return self.process_noise.model
 
     def run(self, frames: Iterable[FrameMeasurement]) -> Trajectory:
         """Fuse a whole sequence; "auto" process noise is fitted on all of it first."""
         frames = list(frames)
         if not self._indices:
             self.process_noise.fit_all(frames)
-            self._set_acceleration_sigma(self.process_noise.sigma)
+            self.acceleration_sigma = self.process_noise.sigma
         return super().run(frames)
 
     # -- per frame --------------------------------------------------------------------------
@@ -334,7 +335,7 @@ class FactorGraphSmoother(Estimator):
         k, t, pose_meas, twist_meas = self._checked_frame(frame)
         # Everything is checked: from here on the state changes.
         if self.process_noise.observe(frame):
-            self._set_acceleration_sigma(self.process_noise.sigma)
+            self.acceleration_sigma = self.process_noise.sigma
         if twist_meas is not None and self._poses_span(k, pose_meas, twist_meas[2]):
             twist_meas = None
             self.velocity_factor_counts["skipped"] += 1
@@ -346,17 +347,14 @@ class FactorGraphSmoother(Estimator):
         if first:
             world = self._anchor_start if self.shared_reference_noise else self._world_noise
             self._add(graph, gtsam.PriorFactorPose3(X(k), gtsam.Pose3(), world), "fixed")
-            self._add(
-                graph, gtsam.PriorFactorVector(V(k), _ZERO6, self._twist_prior_noise), "fixed"
-            )
+            for key in twist_keys(self.motion_model, k):  # V(k) (and A(k))
+                prior = gtsam.PriorFactorVector(key, _ZERO6, self._twist_prior_noise)
+                self._add(graph, prior, "fixed")
         else:
-            previous = self._indices[-1]
-            motion_noise, walk_noise = self._process_noise(dt)
-            motion = motion_factor(X(previous), X(k), V(previous), V(k), dt, motion_noise)
-            self._add(graph, motion, "motion", stored=True)
-            walk = gtsam.BetweenFactorVector(V(previous), V(k), _ZERO6, walk_noise)
-            self._add(graph, walk, "motion", stored=True)
-            self.backend.store.add_motion(dt, self.acceleration_sigma)  # both, as numbers
+            previous, sigma = self._indices[-1], self.acceleration_sigma
+            for factor in self._motion(self.motion_model, previous, k, dt, sigma):
+                self._add(graph, factor, "motion", stored=True)
+            self.backend.store.add_motion(dt, sigma, self.motion_model)  # as numbers
         self._indices.append(k)
         self._times.append(t)
         self._last_reference = pose_meas[2] if pose_meas is not None else None
@@ -393,6 +391,8 @@ class FactorGraphSmoother(Estimator):
         values = gtsam.Values()
         values.insert(X(k), pose_guess)
         values.insert(V(k), twist_guess)
+        if self.motion_model == "wnj":
+            values.insert(A(k), _ZERO6)  # every factor is linear in A: any start is exact
         pose, twist, covariance = self.backend.add(graph, values, k, t - self._times[0])
         anchor = self.backend.current_pose(self._indices[0])
         if covariance is not None:

@@ -64,6 +64,7 @@ def isam2_params(
     thresholds = gtsam.ISAM2ThresholdMap()
     thresholds.insert(("x", np.full(6, relinearize_threshold)))
     thresholds.insert(("v", np.full(6, np.inf)))
+    thresholds.insert(("a", np.full(6, np.inf)))  # twist rates (white-noise jerk): linear too
     params.setRelinearizeThreshold(thresholds)
     params.relinearizeSkip = relinearize_skip
     # Check only the cliques touched by the update, not every variable (O(1) per frame).
@@ -212,7 +213,9 @@ class FixedLagBackend(IncrementalBackend):
     ) -> None:
         stamp = self.stamp(stamp_time)
         self._freeze_leaving(stamp)
-        self.smoother.update(graph, values, self._stamps(graph, index, stamp))
+        stamps = self._stamps(graph, index, stamp)
+        stamps.update(dict.fromkeys(values.keys(), stamp))  # the twist rate A too
+        self.smoother.update(graph, values, stamps)
         self.window.append((index, stamp))
         self._collect_frozen()
 
@@ -280,11 +283,8 @@ class BatchBackend(Backend):
         self.graph.push_back(graph)
         self.initial.insert(values)
         self._result = None
-        return (
-            values.atPose3(X(index)),
-            np.array(values.atVector(V(index)), dtype=float),
-            None,
-        )
+        twist = np.array(values.atVector(V(index)), dtype=float)
+        return values.atPose3(X(index)), twist, None
 
     def values(self) -> gtsam.Values:
         """The optimum of the graph so far (solved once, then kept)."""
@@ -377,7 +377,7 @@ class Isam2Backend(Backend):
         self._result = None
         stamp = float(self._count // self.block * self.block)
         self._count += 1
-        stamps = {X(index): stamp, V(index): stamp}
+        stamps = dict.fromkeys(values.keys(), stamp)  # the frame's X, V (and A)
         online = gtsam.NonlinearFactorGraph()
         for i in range(graph.size()):
             factor = graph.at(i)
