@@ -193,14 +193,15 @@ def test_the_likelihood_picks_wnj_on_smooth_motion_and_wna_on_a_random_walk():
     assert picked.model == "wna"
 
 
-def test_auto_resolves_per_sequence_and_fixed_values_keep_wna():
+def test_auto_resolves_per_sequence_and_fixed_values_and_the_default_are_wna():
     rng = np.random.default_rng(6)
     dt = 1 / 30
     rough = frames_of(random_walk_poses(rng, 200, dt, q=1.0), dt, 1e-6, rng)
-    smoother = FactorGraphSmoother()
+    smoother = FactorGraphSmoother(motion_model="auto")
     smoother.run(rough)
     assert smoother.motion_model == "wna"
-    assert FactorGraphSmoother(acceleration_sigma=0.1).motion_model == "wna"
+    assert FactorGraphSmoother(motion_model="auto", acceleration_sigma=0.1).motion_model == "wna"
+    assert FactorGraphSmoother().motion_model == "wna"  # the default
     assert make_estimator("batch", motion_model="wnj").motion_model == "wnj"
 
 

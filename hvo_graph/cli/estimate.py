@@ -145,8 +145,8 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
         "--motion-model",
         choices=MOTION_MODEL_CHOICES,
         default=S,
-        help="smoother motion model: white-noise acceleration (wna), white-noise jerk "
-        "(wnj), or auto (default): the one the sequence's poses make more likely",
+        help="smoother motion model: white-noise acceleration (wna, default), white-noise "
+        "jerk (wnj), or auto: the one the sequence's poses make more likely",
     )
     model.add_argument(
         "--independent-poses",

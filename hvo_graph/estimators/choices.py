@@ -24,8 +24,8 @@ DEFAULT_LAG: float = 1.0
 #: ``velocity_factors`` choices of the factor-graph smoothers.
 VELOCITY_FACTOR_POLICIES: tuple[str, ...] = ("gaps", "all")
 
-#: ``motion_model`` choices of the factor-graph smoother: white-noise acceleration,
-#: white-noise jerk, or the one of the larger likelihood on the sequence ("auto").
+#: ``motion_model`` choices of the factor-graph smoother: the one of the larger
+#: likelihood on the sequence ("auto"), white-noise acceleration, white-noise jerk.
 MOTION_MODEL_CHOICES: tuple[str, ...] = ("auto", "wna", "wnj")
 
 #: The factor-graph smoother's back ends and their ``--method`` names.

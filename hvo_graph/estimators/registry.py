@@ -67,7 +67,7 @@ class EstimatorOptions:
     acceleration_sigma: float | tuple[float, float] | str = "auto"
     shared_reference_noise: bool = True
     velocity_factors: str = "gaps"
-    motion_model: str = "auto"
+    motion_model: str = "wna"
     relinearize_threshold: float | None = None
     relinearize_skip: int | None = None
 

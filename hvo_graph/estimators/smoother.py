@@ -21,8 +21,8 @@ and the reasons for every default):
   interval), full covariance; only where two H_d poses do not already span the
   interval (the flow and those poses are made of the same pixels);
 - motion (``motion_model``, :mod:`~hvo_graph.estimators.motion_model`): white-noise
-  jerk (a third variable A(k), the twist rate) or white-noise acceleration, by
-  default the one the poses make more likely; Q = diag(s_w^2 I_3, s_v^2 I_3) from
+  acceleration (default) or white-noise jerk (a third variable A(k), the twist
+  rate), or the one the poses make more likely ("auto"); Q = diag(s_w^2 I_3, s_v^2 I_3) from
   ``acceleration_sigma``, by default fitted (:mod:`.noise_estimation`);
 - optional robust loss (Huber or Cauchy) on the two measurement factors.
 
@@ -144,9 +144,9 @@ class FactorGraphSmoother(Estimator):
         relinearize_threshold: ISAM2 relinearizes a variable whose delta exceeds this.
         relinearize_skip: ISAM2 checks for relinearization every this many updates.
         max_iterations: most Levenberg-Marquardt iterations ("batch").
-        motion_model: "wnj" (white-noise jerk), "wna" (white-noise acceleration)
-            or "auto" (default): with fitted ``acceleration_sigma``, the model of
-            the larger maximised likelihood on the whole sequence (:meth:`run`;
+        motion_model: "wna" (default; white-noise acceleration), "wnj" (white-noise
+            jerk) or "auto": with fitted ``acceleration_sigma``, the model of the
+            larger maximised likelihood on the whole sequence (:meth:`run`;
             streamed frames keep "wnj"); with fixed values, "wna". In force:
             :attr:`motion_model`.
     """
@@ -169,7 +169,7 @@ class FactorGraphSmoother(Estimator):
         relinearize_threshold: float = DEFAULT_RELINEARIZE_THRESHOLD,
         relinearize_skip: int = DEFAULT_RELINEARIZE_SKIP,
         max_iterations: int = 100,
-        motion_model: str = "auto",
+        motion_model: str = "wna",
     ) -> None:
         super().__init__()
         if solver not in SOLVERS:
