@@ -52,7 +52,11 @@ BIAS_MODEL_SCALE: float = 100.0
 #: A bias counts only beyond this many times the probe's own noise (in the noise's
 #: metric): the squared probe averaged over a window still scatters, and keeping every
 #: positive excess made the covariance 20-35 % too large where the model has no bias.
-BIAS_NOISE_MARGIN: float = 1.5
+#: At 1.5 the scatter still counted: over the ten scenario families (10 seeds, ISAM2)
+#: the twist NEES per dof averaged 0.87 with the white-noise-acceleration model and 0.78
+#: with motion_model "auto" (0.62-0.67 on three families, 0.8-1.3 there without the bias
+#: term); at 2.0 it is 1.02 and 0.90, every family within 0.73-1.37, pose NEES +0.03.
+BIAS_NOISE_MARGIN: float = 2.0
 
 #: Half-width of the window the squared bias is averaged over, seconds.
 BIAS_WINDOW_SECONDS: float = 0.5
