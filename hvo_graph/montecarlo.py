@@ -245,7 +245,9 @@ def _evaluate(
             result.series[label] = series
     if bound:
         smoother = runs.estimator("smoother")
-        if smoother is not None:
+        # the bound's prior is white-noise acceleration: take the smoother's densities
+        # only when they are of that model
+        if smoother is not None and getattr(smoother, "motion_model", "wna") == "wna":
             sigma = smoother.acceleration_sigma  # type: ignore[attr-defined]
         else:
             fit = estimate_process_noise(
