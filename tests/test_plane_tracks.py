@@ -156,5 +156,5 @@ def test_a_trajectory_asked_midway_does_not_stop_the_test():
         tight.update(frame)
     trajectory = tight.trajectory()
     assert tight.rejected_tracks == outliers
-    assert not set(tight.backend.graph.keyVector()) & tight._rejected_keys
+    assert not set(tight.backend.store.whole_graph().keyVector()) & tight._rejected_keys
     assert len(trajectory) == len(frames)

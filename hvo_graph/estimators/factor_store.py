@@ -21,16 +21,22 @@ iterates): 1.1 GiB at 100,000 frames. Here
   whole problem, i.e. the batch optimum (to that tolerance). The graph is a
   chain, so a change at a chunk's edge fades within a few tens of frames and
   a second sweep only confirms the first. Peak memory: one chunk's solve.
+
+The tightly coupled smoother's graph adds plane landmarks L(j) (``Point3``) that
+frames far apart observe: its projection factors are rows of 5 numbers (frame,
+landmark, image point m, sigma), and it is solved by Levenberg-Marquardt with each
+linear system solved chunk by chunk (:mod:`~hvo_graph.estimators.chunked_lm`).
 """
 
 from __future__ import annotations
 
-from collections.abc import Callable, Iterator, Sequence
+from collections.abc import Callable, Iterable, Iterator, Sequence
 
 import gtsam
 import numpy as np
 from gtsam.symbol_shorthand import A, V, X
 
+from hvo_graph.estimators.chunked_lm import chunked_levenberg_marquardt
 from hvo_graph.estimators.least_squares import levenberg_marquardt
 from hvo_graph.estimators.motion_model import MOTION_MODELS, MotionFactors
 
@@ -40,7 +46,9 @@ __all__ = [
     "FactorStore",
     "batch_marginals",
     "copy_value",
+    "final_states",
     "solve_in_chunks",
+    "stored_optimum",
 ]
 
 #: Frames solved together by :func:`solve_in_chunks` (a sequence this long or shorter
@@ -58,9 +66,13 @@ CHUNK_TOLERANCE: float = 1e-9
 #: moves nothing beyond the tolerance).
 MAX_SWEEPS: int = 6
 
+#: The camera of the projection factors: unit focal length, no offset (normalized
+#: coordinates m = (x/z, y/z), undistorted by the front end).
+UNIT_CALIBRATION = gtsam.Cal3_S2(1.0, 1.0, 0.0, 0.0, 0.0)
+
 
 class _Rows:
-    """A growing 2-D float array (capacity doubles): rows appended one at a time."""
+    """A growing 2-D float array (capacity doubles): rows appended one or many at a time."""
 
     def __init__(self, width: int, dtype: type = float) -> None:
         self.data = np.empty((16, width), dtype=dtype)
@@ -71,6 +83,12 @@ class _Rows:
             self.data = np.concatenate([self.data, np.empty_like(self.data)])
         self.data[self.size] = row
         self.size += 1
+
+    def extend(self, rows: np.ndarray) -> None:
+        while self.size + len(rows) > len(self.data):
+            self.data = np.concatenate([self.data, np.empty_like(self.data)])
+        self.data[self.size : self.size + len(rows)] = rows
+        self.size += len(rows)
 
     def view(self) -> np.ndarray:
         return self.data[: self.size]
@@ -86,11 +104,18 @@ class FactorStore:
         noise: the noise model of an H_d pose factor from its (6, 6) covariance (the
             smoother's, robust loss included), called again when the factor is rebuilt.
             None: a store that keeps nothing (for back ends that keep their own graph).
+        pixel_noise: the noise model of a projection factor from its sigma (normalized
+            image units; robust loss included), for a store with landmarks.
     """
 
-    def __init__(self, noise: Callable[[np.ndarray], gtsam.noiseModel.Base] | None) -> None:
+    def __init__(
+        self,
+        noise: Callable[[np.ndarray], gtsam.noiseModel.Base] | None,
+        pixel_noise: Callable[[float], gtsam.noiseModel.Base] | None = None,
+    ) -> None:
         self.noise = noise
-        self.keeps = noise is not None
+        self.pixel_noise = pixel_noise
+        self.keeps = noise is not None or pixel_noise is not None
         self._index = _Rows(1, np.int64)  # frame index by position
         self._motion = _Rows(5)  # position of the later frame, dt, s_w, s_v, model
         self._prior = _Rows(1 + 12 + 36)  # position, R (row-major) and t, covariance
@@ -99,6 +124,12 @@ class FactorStore:
         self._motion_factors = MotionFactors()
         #: Whether any frame has a twist rate A(k) (the white-noise-jerk model).
         self.rates = False
+        self._observation = _Rows(4)  # position of the frame, m (2), sigma
+        self._observed = _Rows(1, np.int64)  # landmark key of each observation
+        #: Landmark key -> its own factors (the plane prior), for the landmarks kept.
+        self.landmarks: dict[int, list[gtsam.NonlinearFactor]] = {}
+        #: Keys of the landmarks left out (:meth:`drop_landmarks`).
+        self.dropped: set[int] = set()
 
     def __len__(self) -> int:
         return self._index.size
@@ -139,6 +170,65 @@ class FactorStore:
         self._span.append([places.min(), places.max()])
         self._other.append(factor)
 
+    def add_landmark(self, key: int, factor: gtsam.NonlinearFactor) -> None:
+        """A new landmark ``key`` (a ``Point3``) with a factor on it alone (its plane prior)."""
+        if self.keeps:
+            self.landmarks.setdefault(key, []).append(factor)
+
+    def add_observations(self, keys: Sequence[int], m: np.ndarray, sigma: float) -> None:
+        """Projection factors of the landmarks ``keys`` in the newest frame: normalized
+        image points m (N, 2) with isotropic noise ``sigma`` (``pixel_noise(sigma)``)."""
+        if not self.keeps or not len(keys):
+            return
+        rows = np.empty((len(keys), 4))
+        rows[:, 0] = len(self) - 1
+        rows[:, 1:3] = m
+        rows[:, 3] = sigma
+        self._observation.extend(rows)
+        self._observed.extend(np.asarray(keys, dtype=np.int64)[:, None])
+
+    def drop_landmarks(self, keys: set[int]) -> None:
+        """Leave out every factor of the landmarks ``keys`` (rejected tracks) from now on."""
+        self.dropped.update(keys)
+        for key in keys:
+            self.landmarks.pop(key, None)
+
+    def landmark_graph(self) -> gtsam.NonlinearFactorGraph:
+        """The factors on the landmarks alone (their plane priors)."""
+        graph = gtsam.NonlinearFactorGraph()
+        for factors in self.landmarks.values():
+            for factor in factors:
+                graph.add(factor)
+        return graph
+
+    def _observations(self, first: int, stop: int) -> tuple[np.ndarray, np.ndarray]:
+        """The observation rows of the frames at positions [first, stop) and their
+        landmark keys, those of dropped landmarks left out."""
+        rows = self._observation.view()
+        lo, hi = np.searchsorted(rows[:, 0], [first, stop])  # rows are in frame order
+        rows, keys = rows[lo:hi], self._observed.view()[lo:hi, 0]
+        if self.dropped and len(keys):
+            kept = ~np.isin(keys, np.fromiter(self.dropped, np.int64))
+            rows, keys = rows[kept], keys[kept]
+        return rows, keys
+
+    def last_observed(self) -> dict[int, int]:
+        """Landmark key -> the position of the last frame observing it."""
+        rows, keys = self._observations(0, len(self))
+        if not len(keys):
+            return {}
+        unique, last = np.unique(keys[::-1], return_index=True)
+        positions = rows[len(keys) - 1 - last, 0].astype(int)
+        return dict(zip(unique.tolist(), positions.tolist(), strict=True))
+
+    def observations(self, first: int, stop: int) -> int:
+        """How many observations the frames at positions [first, stop) hold."""
+        return len(self._observations(first, stop)[1])
+
+    def observed(self, first: int, stop: int) -> np.ndarray:
+        """The keys of the landmarks the frames at positions [first, stop) observe."""
+        return np.unique(self._observations(first, stop)[1])
+
     def longest_span(self) -> int:
         """The most positions apart two frames of one factor are (1: a chain)."""
         span = self._span.view()
@@ -148,14 +238,18 @@ class FactorStore:
         """(K,) frame index of every position."""
         return self._index.view()[:, 0]
 
-    def graph(self, first: int, stop: int) -> tuple[gtsam.NonlinearFactorGraph, range]:
-        """Every factor touching a frame at a position in [first, stop), and the range of
-        positions those factors touch."""
+    def graph(
+        self, first: int, stop: int, *, newest: bool = False
+    ) -> tuple[gtsam.NonlinearFactorGraph, range]:
+        """Every factor touching a frame at a position in [first, stop) (``newest``: every
+        factor whose newest frame is there), and the range of positions they touch. The
+        landmarks' own factors are not included (:meth:`landmark_graph`)."""
         indices = self.indices()
         graph = gtsam.NonlinearFactorGraph()
         lo, hi = first, stop
         motion = self._motion.view()
-        for p, dt, s_w, s_v, model in motion[(motion[:, 0] >= first) & (motion[:, 0] < stop + 1)]:
+        late = stop if newest else stop + 1
+        for p, dt, s_w, s_v, model in motion[(motion[:, 0] >= first) & (motion[:, 0] < late)]:
             p = int(p)
             previous, k = int(indices[p - 1]), int(indices[p])
             sigma = (float(s_w), float(s_v))
@@ -171,22 +265,40 @@ class FactorStore:
             noise = self.noise(row[13:].reshape(6, 6))  # type: ignore[misc]
             graph.add(gtsam.PriorFactorPose3(key, pose, noise))
         span = self._span.view()
-        for i in np.flatnonzero((span[:, 0] < stop) & (span[:, 1] >= first)):
+        reach = (span[:, 1] >= first) & ((span[:, 1] < stop) if newest else (span[:, 0] < stop))
+        for i in np.flatnonzero(reach):
             graph.add(self._other[i])
             lo, hi = min(lo, int(span[i, 0])), max(hi, int(span[i, 1]) + 1)
+        rows, keys = self._observations(first, stop)
+        for (p, u, v, sigma), key in zip(rows.tolist(), keys.tolist(), strict=True):
+            graph.add(
+                gtsam.GenericProjectionFactorCal3_S2(
+                    np.array([u, v]),
+                    self.pixel_noise(sigma),  # type: ignore[misc]
+                    X(int(indices[int(p)])),
+                    key,
+                    UNIT_CALIBRATION,
+                )
+            )
         return graph, range(lo, hi)
 
     def whole_graph(self) -> gtsam.NonlinearFactorGraph:
         """Every factor (as GTSAM objects: for small problems and tests)."""
-        return self.graph(0, len(self))[0]
+        graph = self.graph(0, len(self))[0]
+        graph.push_back(self.landmark_graph())
+        return graph
 
 
-def _frame_values(source: gtsam.Values, indices: np.ndarray, rates: bool) -> gtsam.Values:
+def _frame_values(
+    source: gtsam.Values, indices: np.ndarray, rates: bool, landmarks: np.ndarray
+) -> gtsam.Values:
     values = gtsam.Values()
-    for k in indices:
-        values.insert(X(int(k)), source.atPose3(X(int(k))))
-        for key in (V(int(k)), A(int(k))) if rates else (V(int(k)),):
+    for k in indices.tolist():
+        values.insert(X(k), source.atPose3(X(k)))
+        for key in (V(k), A(k)) if rates else (V(k),):
             values.insert(key, source.atVector(key))
+    for key in landmarks.tolist():
+        values.insert(key, source.atPoint3(key))
     return values
 
 
@@ -199,7 +311,8 @@ def solve_in_chunks(
     tolerance: float = CHUNK_TOLERANCE,
     max_iterations: int = 100,
 ) -> list[float]:
-    """Move ``values`` (every frame's X and V) to the optimum of the store's graph.
+    """Move ``values`` (every frame's X and V, every landmark's L) to the optimum of the
+    store's graph.
 
     At most ``chunk`` frames are solved at once by :func:`levenberg_marquardt`, the
     frames just outside held (module docstring). A sequence of at most ``chunk``
@@ -215,12 +328,22 @@ def solve_in_chunks(
     than half (a keyframe used for thousands of frames couples every chunk), the
     whole graph is solved at once: the batch optimum always, in bounded memory
     where the graph is a chain.
-    Returns the largest move of each sweep, in order.
+
+    With landmarks (longer than ``chunk`` frames): Levenberg-Marquardt on the whole
+    graph, its linear systems solved ``chunk`` frames at a time
+    (:func:`~hvo_graph.estimators.chunked_lm.chunked_levenberg_marquardt`).
+    Returns the largest move of each sweep (with landmarks: the largest step of the solve).
     """
     total = len(store)
     indices = store.indices()
+    whole = (store, values, indices, 0, total, max_iterations)
     if total <= chunk:
-        return [_solve_range(store, values, indices, 0, total, max_iterations)]
+        return [_solve_range(*whole, landmarks=True)]
+    if store.landmarks:
+        kept = chunked_levenberg_marquardt(
+            store, values, chunk=chunk, max_iterations=max_iterations
+        )
+        return [kept[1]]
     starts = [0]
     while starts[-1] + chunk < total:
         starts.append(starts[-1] + max(1, chunk - overlap))
@@ -228,19 +351,42 @@ def solve_in_chunks(
     seams = [(first - overlap, min(first + overlap, total)) for first in starts[1:]]
     if store.longest_span() > overlap // 2:
         seams = chunks
-    moves = [max(_solve_range(store, values, indices, *c, max_iterations) for c in chunks)]
-    while len(moves) < MAX_SWEEPS:
-        moves.append(max(_solve_range(store, values, indices, *s, max_iterations) for s in seams))
-        if moves[-1] <= tolerance:
-            return moves
-        if seams is chunks and moves[-1] > 0.5 * moves[-2]:
-            break  # sweeps converge slowly here: solve it at once
-        if seams is not chunks:
-            moves.append(
-                max(_solve_range(store, values, indices, *c, max_iterations) for c in chunks)
-            )
-    moves.append(_solve_range(store, values, indices, 0, total, max_iterations))
+    moves: list[float] = []
+    if _sweeps(store, values, indices, chunks, seams, tolerance, max_iterations, moves):
+        return moves
+    moves.append(_solve_range(*whole))
     return moves
+
+
+def _sweeps(
+    store: FactorStore,
+    values: gtsam.Values,
+    indices: np.ndarray,
+    chunks: list[tuple[int, int]],
+    seams: list[tuple[int, int]],
+    tolerance: float,
+    max_iterations: int,
+    moves: list[float],
+) -> bool:
+    """Sweeps over the chunks and seams (:func:`solve_in_chunks`), landmarks held, their
+    largest moves appended to ``moves``; whether they settled."""
+
+    def sweep(ranges: list[tuple[int, int]]) -> float:
+        return max(_solve_range(store, values, indices, *r, max_iterations) for r in ranges)
+
+    count = 1
+    moves.append(sweep(chunks))
+    while count < MAX_SWEEPS:
+        moves.append(sweep(seams))
+        count += 1
+        if moves[-1] <= tolerance:
+            return True
+        if seams is chunks and moves[-1] > 0.5 * moves[-2]:
+            return False  # sweeps converge slowly here: solve it at once
+        if seams is not chunks:
+            moves.append(sweep(chunks))
+            count += 1
+    return False
 
 
 def _solve_range(
@@ -250,26 +396,77 @@ def _solve_range(
     first: int,
     stop: int,
     max_iterations: int,
+    *,
+    landmarks: bool = False,
 ) -> float:
-    """Solve the frames at positions [first, stop) with every other frame held; update
-    ``values``; return the largest move (any tangent coordinate)."""
+    """Solve the frames at positions [first, stop) with every other frame held (and the
+    landmarks, unless ``landmarks``: then they are solved too, with their own factors);
+    update ``values``; return the largest move (any tangent coordinate)."""
     graph, touched = store.graph(first, stop)
-    chunk_values = _frame_values(values, indices[touched.start : touched.stop], store.rates)
+    observed = store.observed(touched.start, touched.stop)
+    if landmarks:
+        graph.push_back(store.landmark_graph())
+        observed = np.union1d(observed, np.fromiter(store.landmarks, np.int64))
+    frames = indices[touched.start : touched.stop]
+    chunk_values = _frame_values(values, frames, store.rates, observed)
     outside = np.concatenate([indices[touched.start : first], indices[stop : touched.stop]])
     symbols = (X, V, A) if store.rates else (X, V)
-    held = [symbol(int(k)) for k in outside for symbol in symbols]
+    held = [symbol(k) for k in outside.tolist() for symbol in symbols]
+    if not landmarks:
+        held.extend(observed.tolist())
     solved, _ = levenberg_marquardt(graph, chunk_values, max_iterations=max_iterations, fixed=held)
     moved = chunk_values.localCoordinates(solved)
     largest = 0.0
-    for k in indices[first:stop]:
+    for k in indices[first:stop].tolist():
         for symbol in symbols:
-            key = symbol(int(k))
+            key = symbol(k)
             largest = max(largest, float(np.abs(moved.at(key)).max()))
             if symbol is X:
                 values.update(key, solved.atPose3(key))
             else:
                 values.update(key, solved.atVector(key))
+    if landmarks:
+        for key in observed.tolist():
+            largest = max(largest, float(np.abs(moved.at(key)).max()))
+            values.update(key, solved.atPoint3(key))
     return largest
+
+
+def stored_optimum(
+    store: FactorStore,
+    initial: gtsam.Values,
+    isam: gtsam.ISAM2,
+    live: Iterable[int],
+    *,
+    chunk: int = CHUNK_FRAMES,
+    overlap: int = CHUNK_OVERLAP,
+    max_iterations: int = 100,
+) -> tuple[gtsam.Values, list[float]]:
+    """The optimum of the store's graph (:func:`solve_in_chunks`) started from
+    ``initial`` (each variable's value as it left an online window), with ISAM2's
+    current estimate for the keys ``live`` (still in the window); and the moves."""
+    result = gtsam.Values(initial)
+    live = [key for key in live if result.exists(key)]
+    if live:
+        estimate = isam.calculateBestEstimate()
+        for key in live:
+            copy_value(estimate, result, key)
+    moves = solve_in_chunks(
+        store, result, chunk=chunk, overlap=overlap, max_iterations=max_iterations
+    )
+    return result, moves
+
+
+def final_states(
+    store: FactorStore, values: gtsam.Values, indices: Sequence[int], *, marginals: bool
+) -> Iterator[tuple[gtsam.Pose3, np.ndarray, np.ndarray | None]]:
+    """Each frame's (pose, twist, 12x12 marginal or None) at the optimum ``values`` of the
+    store's graph; ``marginals``: from :func:`batch_marginals` of the whole graph."""
+    if marginals:
+        yield from batch_marginals(store.whole_graph(), values, indices)
+        return
+    for index in indices:
+        yield values.atPose3(X(index)), values.atVector(V(index)), None
 
 
 def batch_marginals(

@@ -36,7 +36,8 @@ from hvo_graph.estimators.factor_store import (
     FactorStore,
     batch_marginals,
     copy_value,
-    solve_in_chunks,
+    final_states,
+    stored_optimum,
 )
 from hvo_graph.estimators.least_squares import levenberg_marquardt
 
@@ -451,22 +452,16 @@ class Isam2Backend(Backend):
     def values(self) -> gtsam.Values:
         """The optimum of the graph so far (solved once, then kept until the next frame)."""
         if self._result is None:
-            result = gtsam.Values(self.initial)
-            if self.live:
-                estimate = self.isam.calculateBestEstimate()
-                for key in self.live:
-                    copy_value(estimate, result, key)
-            self.moves = solve_in_chunks(self.store, result, max_iterations=self.max_iterations)
-            self._result = result
+            self._result, self.moves = stored_optimum(
+                self.store, self.initial, self.isam, self.live, max_iterations=self.max_iterations
+            )
         return self._result
 
     def final(self, indices: Sequence[int], *, marginals: bool = True) -> Iterator[FrameValues]:
         values = self.values()
-        if self.compute_covariance and marginals:
-            yield from batch_marginals(self.store.whole_graph(), values, indices)
-            return
-        for index in indices:
-            yield values.atPose3(X(index)), values.atVector(V(index)), None
+        yield from final_states(
+            self.store, values, indices, marginals=self.compute_covariance and marginals
+        )
 
 
 def make_backend(

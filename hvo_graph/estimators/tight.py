@@ -66,6 +66,7 @@ from hvo_graph.estimators.solvers import Backend, BatchBackend
 from hvo_graph.estimators.tight_solvers import (
     LandmarkFixedLagBackend,
     WindowIsam2Backend,
+    drop_landmarks,
     tight_isam2_params,
 )
 from hvo_graph.types import FrameMeasurement, PointObservations, StateEstimate, Trajectory
@@ -134,7 +135,8 @@ class TightSmoother(Estimator):
     Args:
         solver: "isam2" (default; ``--method tight``): ISAM2 over a rebuilt window
             online (:class:`~hvo_graph.estimators.tight_solvers.WindowIsam2Backend`),
-            batch Levenberg-Marquardt from its estimate for :meth:`trajectory`; "batch"
+            the batch optimum from its estimates for :meth:`trajectory`, solved in chunks
+            of frames (:func:`~hvo_graph.estimators.factor_store.solve_in_chunks`); "batch"
             (``tight-batch``); "fixed-lag" (``tight-fixed-lag``, ``lag`` seconds).
         lag: window of the fixed-lag solver, seconds (> 0).
         acceleration_sigma: (s_w, s_v) of the white-noise-acceleration model, one
@@ -212,6 +214,7 @@ class TightSmoother(Estimator):
                 tight_isam2_params(threshold, skip),
                 max_iterations=max_iterations,
                 compute_covariance=self.compute_covariance,
+                pixel_noise=self._pixel_noise_model,
             )
         self._world_noise = gtsam.noiseModel.Isotropic.Sigma(6, DEFAULT_WORLD_SIGMA)
         self._twist_prior = gtsam.noiseModel.Isotropic.Sigma(6, DEFAULT_INITIAL_TWIST_SIGMA)
@@ -271,15 +274,22 @@ class TightSmoother(Estimator):
             if frame.velocity is not None
             else self._twist
         )
+        store = self.backend.store  # the final solve's copy of the factors (or nothing)
+        store.add_frame(k)
         if not self._indices:
-            graph.add(gtsam.PriorFactorPose3(X(k), gtsam.Pose3(), self._world_noise))
-            graph.add(gtsam.PriorFactorVector(V(k), _ZERO6, self._twist_prior))
+            for prior in (
+                gtsam.PriorFactorPose3(X(k), gtsam.Pose3(), self._world_noise),
+                gtsam.PriorFactorVector(V(k), _ZERO6, self._twist_prior),
+            ):
+                graph.add(prior)
+                store.add_factor(prior)
             pose_guess = gtsam.Pose3()
         else:
             previous, dt = self._indices[-1], t - self._times[-1]
             motion_noise, walk_noise = self._motion_noise(dt)
             graph.add(motion_factor(X(previous), X(k), V(previous), V(k), dt, motion_noise))
             graph.add(gtsam.BetweenFactorVector(V(previous), V(k), _ZERO6, walk_noise))
+            store.add_motion(dt, self.acceleration_sigma)  # both, as numbers
             if frame.pose is not None:
                 world = self.pose_in_world(frame.pose)
                 pose_guess = gtsam.Pose3(gtsam.Rot3(world.rotation), world.position)
@@ -343,10 +353,13 @@ class TightSmoother(Estimator):
                 self._key_track[key] = track
                 self.counts["landmarks"] += 1
                 values.insert(key, point)
-                graph.add(gtsam.PriorFactorPoint3(key, point, self._plane_model(normal)))
+                graph.add(plane := gtsam.PriorFactorPoint3(key, point, self._plane_model(normal)))
+                self.backend.store.add_landmark(key, plane)  # the final solve's copy
             graph.add(gtsam.GenericProjectionFactorCal3_S2(m, noise, X(k), key, _UNIT_CALIBRATION))
             self.counts["observations"] += 1
             added.append((track, key, m))
+        m = np.array([m for _, _, m in added])  # the final solve's copy, as numbers:
+        self.backend.store.add_observations([key for _, key, _ in added], m, float(points.sigma))
         return added
 
     def _pixel_noise_model(self, sigma: float) -> gtsam.noiseModel.Base:
@@ -420,7 +433,7 @@ class TightSmoother(Estimator):
         if (
             self._tracks_checked
             or self._plane is None
-            or not isinstance(self.backend, BatchBackend)
+            or not isinstance(self.backend, (BatchBackend, WindowIsam2Backend))
         ):
             return
         self._tracks_checked = True
@@ -450,23 +463,9 @@ class TightSmoother(Estimator):
 
     def _prune(self) -> None:
         """Drop the factors and values of rejected landmarks from the final graph."""
-        if self._rejected_keys <= self._pruned_keys or not isinstance(self.backend, BatchBackend):
-            return
-        backend = self.backend
-        backend.final([], marginals=False)  # let an ISAM2 back end hand over its estimate
-        kept = gtsam.NonlinearFactorGraph()
-        for i in range(backend.graph.size()):
-            factor = backend.graph.at(i)
-            if factor is not None and not self._rejected_keys.intersection(factor.keys()):
-                kept.add(factor)
-        live: set[int] = getattr(backend, "live", set())
-        for key in self._rejected_keys:
-            live.discard(key)  # not handed over again by the ISAM2 back end
-            if backend.initial.exists(key):
-                backend.initial.erase(key)
-        backend.graph = kept
-        backend._result = None
-        self._pruned_keys = set(self._rejected_keys)
+        if not self._rejected_keys <= self._pruned_keys:
+            drop_landmarks(self.backend, self._rejected_keys)
+            self._pruned_keys = set(self._rejected_keys)
 
     def trajectory(self) -> Trajectory:
         """The smoothed estimate of every frame so far (the class docstring per solver)."""

@@ -2,21 +2,36 @@
 
 Beside the homography graph's back ends (:mod:`hvo_graph.estimators.solvers`), with
 what plane landmarks L(j) (``Point3``, symbol ``l``) need: a relinearization
-threshold of their own, timestamps in the fixed-lag window, and no window for the
-default solver.
+threshold of their own, timestamps in the fixed-lag window, and a window rebuilt
+from its own factors for the default solver, whose final solve, like the default
+homography smoother's, is the batch optimum of a compact store of every factor,
+solved in chunks (:mod:`hvo_graph.estimators.factor_store`).
 """
 
 from __future__ import annotations
 
-from collections.abc import Iterator, Sequence
+from collections.abc import Callable, Iterator, Sequence
 
 import gtsam
 import numpy as np
 from gtsam.symbol_shorthand import V, X
 
-from hvo_graph.estimators.solvers import BatchBackend, FixedLagBackend, FrameValues
+from hvo_graph.estimators.factor_store import (
+    CHUNK_FRAMES,
+    CHUNK_OVERLAP,
+    FactorStore,
+    final_states,
+    stored_optimum,
+)
+from hvo_graph.estimators.solvers import Backend, BatchBackend, FixedLagBackend, FrameValues
 
-__all__ = ["LandmarkFixedLagBackend", "WindowIsam2Backend", "copy_value", "tight_isam2_params"]
+__all__ = [
+    "LandmarkFixedLagBackend",
+    "WindowIsam2Backend",
+    "copy_value",
+    "drop_landmarks",
+    "tight_isam2_params",
+]
 
 _LANDMARK = ord("l")
 
@@ -52,9 +67,9 @@ class LandmarkFixedLagBackend(FixedLagBackend):
         return stamps
 
 
-class WindowIsam2Backend(BatchBackend):
+class WindowIsam2Backend(Backend):
     """ISAM2 over a window of recent frames for the online estimates, the batch
-    Levenberg-Marquardt optimum of the whole graph for the final ones.
+    optimum of the whole graph for the final ones.
 
     Every landmark in view for the whole sequence is touched by every frame, so in one
     ISAM2 over the whole sequence each update scans all of its factors (cost growing
@@ -66,6 +81,12 @@ class WindowIsam2Backend(BatchBackend):
     frames: the oldest kept X, V and the landmarks still observed). The cost per frame
     is bounded, the rebuild amortized over ``window`` frames. Landmarks only the older
     frames saw leave the online problem (:attr:`live`).
+
+    Final (:meth:`final`): every factor, kept as numbers in :attr:`store` (filled by
+    the smoother), solved from each variable's estimate as it left the window (a
+    landmark's carries all its observations) in chunks of ``chunk`` frames sharing
+    ``overlap`` (:func:`~hvo_graph.estimators.factor_store.solve_in_chunks`): the
+    batch optimum, in memory bounded by one chunk's solve.
     """
 
     solver = "isam2"
@@ -77,8 +98,20 @@ class WindowIsam2Backend(BatchBackend):
         window: int = 30,
         max_iterations: int,
         compute_covariance: bool,
+        pixel_noise: Callable[[float], gtsam.noiseModel.Base],
+        chunk: int = CHUNK_FRAMES,
+        overlap: int = CHUNK_OVERLAP,
     ) -> None:
-        super().__init__(max_iterations=max_iterations, compute_covariance=compute_covariance)
+        super().__init__(compute_covariance=compute_covariance)
+        self.max_iterations = max_iterations
+        self.chunk, self.overlap = int(chunk), int(overlap)
+        #: Every factor of the sequence, for the final solve (the smoother adds them).
+        self.store = FactorStore(None, pixel_noise)
+        #: Each variable's value as it left the window (the final solve's initial values).
+        self.initial = gtsam.Values()
+        self._result: gtsam.Values | None = None
+        #: The largest move of each sweep of the last final solve (solve_in_chunks).
+        self.moves: list[float] = []
         self.params = params
         self.window = int(window)
         self.isam = gtsam.ISAM2(params)
@@ -101,7 +134,8 @@ class WindowIsam2Backend(BatchBackend):
         index: int,
         stamp_time: float,
     ) -> FrameValues:
-        super().add(graph, values, index, stamp_time)
+        self.initial.insert(values)
+        self._result = None
         self.isam.update(graph, values)
         self.live.update(values.keys())
         self._frames.append((index, graph))
@@ -172,13 +206,57 @@ class WindowIsam2Backend(BatchBackend):
         # The frames' own factors are kept only for the next rebuild's split.
         self._frames = [(i, _without(g, dropped)) for i, g in kept]
 
+    def drop_landmarks(self, keys: set[int]) -> None:
+        """Leave the landmarks ``keys`` (rejected tracks) and all their factors out of the
+        final solve."""
+        keys = keys - self.store.dropped
+        if not keys:
+            return
+        self.store.drop_landmarks(keys)
+        for key in keys:
+            self.live.discard(key)  # not handed over by the online solver either
+            if self.initial.exists(key):
+                self.initial.erase(key)
+        self._result = None
+
+    def values(self) -> gtsam.Values:
+        """The optimum of the graph so far (solved once, then kept until the next frame)."""
+        if self._result is None:
+            self._result, self.moves = stored_optimum(
+                self.store,
+                self.initial,
+                self.isam,
+                self.live,
+                chunk=self.chunk,
+                overlap=self.overlap,
+                max_iterations=self.max_iterations,
+            )
+        return self._result
+
     def final(self, indices: Sequence[int], *, marginals: bool = True) -> Iterator[FrameValues]:
-        if self._result is None:  # start the batch solve from the online estimate
-            best = self.isam.calculateBestEstimate()
-            for key in self.live:
-                if self.initial.exists(key):  # pruned (rejected) landmarks stay out
-                    self.initial.update(key, _value(best, key))
-        return super().final(indices, marginals=marginals)
+        values = self.values()
+        yield from final_states(
+            self.store, values, indices, marginals=self.compute_covariance and marginals
+        )
+
+
+def drop_landmarks(backend: Backend, keys: set[int]) -> None:
+    """Leave the landmarks ``keys`` (rejected tracks) and every factor on them out of the
+    final solve of ``backend`` (nothing for the fixed-lag one: its frames are final)."""
+    if isinstance(backend, WindowIsam2Backend):
+        backend.drop_landmarks(keys)
+    if not isinstance(backend, BatchBackend):
+        return
+    kept = gtsam.NonlinearFactorGraph()
+    for i in range(backend.graph.size()):
+        factor = backend.graph.at(i)
+        if factor is not None and not keys.intersection(factor.keys()):
+            kept.add(factor)
+    for key in keys:
+        if backend.initial.exists(key):
+            backend.initial.erase(key)
+    backend.graph = kept
+    backend._result = None
 
 
 def _without(graph: gtsam.NonlinearFactorGraph, dropped: set[int]) -> gtsam.NonlinearFactorGraph:

@@ -1,0 +1,256 @@
+"""Levenberg-Marquardt on a landmark graph in bounded memory: each linear system solved
+chunk by chunk.
+
+The tightly coupled smoother's graph is a chain of frames (X(k), V(k): motion
+factors between neighbours) plus landmarks L(j) that frames far apart observe
+(a point in view for the whole sequence: every frame). Block Gauss-Seidel over
+chunks of frames (:func:`~hvo_graph.estimators.factor_store.solve_in_chunks`)
+does not fit it: moving every landmark and every frame together costs almost
+nothing (only the first frame is anchored), and alternating between them
+converges very slowly. Here each Levenberg-Marquardt iteration is the one of
+:func:`~hvo_graph.estimators.least_squares.levenberg_marquardt` on the whole
+graph (the same damping, acceptance and stopping rule, so the same optimum),
+with its linear system solved in two passes over chunks of frames:
+
+- forward: a chunk's factors (those whose newest frame is in it) linearized at
+  the current values, added to the factor carried from the previous chunk, and
+  its frames (all but the last, which the next motion factor touches) and the
+  landmarks no later frame observes eliminated in time order (GTSAM's
+  default ``EliminatePreferCholesky``, as the whole-graph solve: QR's conditionals keep
+  every row of the factors eliminated, ~20 times the memory with 20 points per
+  frame); the remaining Gaussian factor,
+  on that last frame and the landmarks still observed, is carried on (and kept:
+  (3 L + 12)^2 numbers for L such landmarks);
+- backward: the last chunk is solved outright; then each earlier chunk is
+  linearized and eliminated again from its kept incoming factor, and
+  back-substituted given the solution of what it was conditioned on.
+
+Memory: one chunk's linearized factors and conditionals, the carried factors,
+and the step (12 numbers per frame); the cost is about two linear solves of
+the whole graph per iteration.
+"""
+
+from __future__ import annotations
+
+from typing import TYPE_CHECKING
+
+import gtsam
+import numpy as np
+from gtsam.symbol_shorthand import V, X
+
+if TYPE_CHECKING:
+    from hvo_graph.estimators.factor_store import FactorStore
+
+__all__ = ["chunked_levenberg_marquardt"]
+
+_POSE, _LANDMARK = ord("x"), ord("l")
+
+#: Factors a solve keeps (with their linearization and conditionals within a step)
+#: instead of rebuilding them at every pass: those of the first chunks of a long
+#: sequence, all of a short one (two per frame and one per observation; 10,000
+#: frames of 4 points, ~0.1 GB).
+CACHED_FACTORS: int = 60000
+
+
+class _Chunks:
+    """The chunks of a store's graph and their linear systems at some values."""
+
+    def __init__(self, store: FactorStore, chunk: int) -> None:
+        self.store = store
+        self.indices = store.indices()
+        total = len(self.indices)
+        self.ranges = [(first, min(first + chunk, total)) for first in range(0, total, chunk)]
+        # The factors (and their linearization, within a step) of the first chunks, kept:
+        # rebuilt only beyond CACHED_FACTORS (memory bounded; short sequences: no rebuild).
+        self.cached, kept = 0, 0
+        for first, stop in self.ranges:
+            kept += 2 * (stop - first) + store.observations(first, stop)
+            if kept > CACHED_FACTORS:
+                break
+            self.cached += 1
+        self.graphs: dict[int, gtsam.NonlinearFactorGraph] = {}
+        self.linearized: dict[int, gtsam.GaussianFactorGraph] = {}
+        last = store.last_observed()  # landmark -> position of its last observation
+        self.leaving: list[list[int]] = [[] for _ in self.ranges]
+        for key in store.landmarks:
+            self.leaving[min(last.get(key, 0) // chunk, len(self.ranges) - 1)].append(key)
+        self.dims = {key: 3 for key in store.landmarks}
+
+    def error(self, values: gtsam.Values) -> float:
+        """The whole graph's error at ``values``, one chunk's factors at a time."""
+        return sum(self.graph(c).error(values) for c in range(len(self.ranges)))
+
+    def graph(self, c: int) -> gtsam.NonlinearFactorGraph:
+        """Chunk ``c``'s factors (those whose newest frame is in it; in the first chunk,
+        the landmarks' own factors too)."""
+        graph = self.graphs.get(c)
+        if graph is None:
+            first, stop = self.ranges[c]
+            graph = self.store.graph(first, stop, newest=True)[0]
+            if c == 0:
+                graph.push_back(self.store.landmark_graph())
+            if c < self.cached:
+                self.graphs[c] = graph
+        return graph
+
+    def linear(
+        self, c: int, values: gtsam.Values, root: float
+    ) -> tuple[gtsam.NonlinearFactorGraph, gtsam.GaussianFactorGraph]:
+        """Chunk ``c``'s factors, and them linearized at ``values`` with the damping
+        sqrt(lambda) I on its frames (in the first chunk: with the landmarks' own factors
+        and damping too)."""
+        first, stop = self.ranges[c]
+        graph = self.graph(c)
+        linear = self.linearized.pop(c, None)  # kept from the forward pass
+        if linear is None:
+            linear = graph.linearize(values)
+            if c < self.cached:
+                self.linearized[c] = linear
+        damped = gtsam.GaussianFactorGraph()  # the kept linearization stays undamped
+        damped.push_back(linear)
+        linear = damped
+        damping, zeros, unit = root * np.eye(6), np.zeros(6), gtsam.noiseModel.Unit.Create(6)
+        for k in self.indices[first:stop].tolist():
+            linear.add(X(k), damping, zeros, unit)
+            linear.add(V(k), damping, zeros, unit)
+        if c == 0:
+            damping, zeros, unit = root * np.eye(3), np.zeros(3), gtsam.noiseModel.Unit.Create(3)
+            for key in self.store.landmarks:
+                linear.add(key, damping, zeros, unit)
+        return graph, linear
+
+    def ordering(self, c: int, *, keep_last: bool) -> gtsam.Ordering:
+        """Chunk ``c``'s frames in time order (from the previous chunk's last), then the
+        landmarks it is the last to observe."""
+        first, stop = self.ranges[c]
+        ordering = gtsam.Ordering()
+        for k in self.indices[max(first - 1, 0) : stop - 1 if keep_last else stop].tolist():
+            ordering.push_back(X(k))
+            ordering.push_back(V(k))
+        for key in self.leaving[c]:
+            ordering.push_back(key)
+        return ordering
+
+    def step(self, values: gtsam.Values, lam: float) -> tuple[gtsam.Values, float, float]:
+        """The values after the damped Gauss-Newton step at ``values`` (forward, then
+        backward pass), the graph's error there, and the step's largest coordinate."""
+        root = float(np.sqrt(lam))
+        self.linearized.clear()
+        incoming = []
+        nets: dict[int, gtsam.GaussianBayesNet] = {}
+        parents: dict[int, list[int]] = {}
+        carried = gtsam.GaussianFactorGraph()
+        last = len(self.ranges) - 1
+        for c in range(last):
+            incoming.append(carried)
+            graph = gtsam.GaussianFactorGraph()
+            graph.push_back(carried)
+            graph.push_back(self.linear(c, values, root)[1])
+            ordering = self.ordering(c, keep_last=True)
+            if c < self.cached:  # its conditionals kept: the backward pass only substitutes
+                nets[c], carried = graph.eliminatePartialSequential(ordering)
+                parents[c] = list(carried.keyVector())
+            else:
+                _, carried = graph.eliminatePartialMultifrontal(ordering)
+        nonlinear, linear = self.linear(last, values, root)
+        linear.push_back(carried)
+        delta = linear.optimize(self.ordering(last, keep_last=False))
+        error = nonlinear.error(_moved(values, delta, nonlinear))
+        for c in range(last - 1, -1, -1):
+            ordering = self.ordering(c, keep_last=True)
+            eliminated = [ordering.at(n) for n in range(ordering.size())]
+            if c in nets:
+                given = gtsam.VectorValues()
+                for key in parents[c]:  # all solved: they are eliminated after the chunk
+                    given.insert(key, delta.at(key))
+                solved = nets.pop(c).optimize(given)
+                nonlinear = self.graph(c)
+            else:
+                nonlinear, linear = self.linear(c, values, root)
+                solved = _conditioned_solve(incoming[c], linear, ordering, delta)
+            for key in eliminated:
+                delta.insert(key, solved.at(key))
+            # Every variable of the chunk's factors is solved now: their error after the
+            # step, while they are at hand (chunk 0's include the landmarks' own).
+            error += nonlinear.error(_moved(values, delta, nonlinear))
+        return values.retract(delta), error, float(np.abs(delta.vector()).max())
+
+
+def _conditioned_solve(
+    incoming: gtsam.GaussianFactorGraph,
+    linear: gtsam.GaussianFactorGraph,
+    ordering: gtsam.Ordering,
+    delta: gtsam.VectorValues,
+) -> gtsam.VectorValues:
+    """The chunk's variables (``ordering``) given the solution ``delta`` of everything else
+    its factors touch: those held there (hard constraints, eliminated last)."""
+    conditioned = gtsam.GaussianFactorGraph()
+    conditioned.push_back(incoming)
+    conditioned.push_back(linear)
+    eliminated = {ordering.at(n) for n in range(ordering.size())}
+    for key in conditioned.keyVector():
+        if key not in eliminated:
+            given = delta.at(key)
+            dim = len(given)
+            conditioned.add(key, np.eye(dim), given, gtsam.noiseModel.Constrained.All(dim))
+            ordering.push_back(key)
+    return conditioned.optimize(ordering)
+
+
+def _moved(
+    values: gtsam.Values, delta: gtsam.VectorValues, graph: gtsam.NonlinearFactorGraph
+) -> gtsam.Values:
+    """``values`` of the keys of ``graph``, moved by ``delta``."""
+    subset = gtsam.Values()
+    for key in graph.keyVector():
+        kind = gtsam.Symbol(key).chr()
+        if kind == _POSE:
+            subset.insert(key, values.atPose3(key))
+        elif kind == _LANDMARK:
+            subset.insert(key, values.atPoint3(key))
+        else:
+            subset.insert(key, values.atVector(key))
+    return subset.retract(delta)
+
+
+def chunked_levenberg_marquardt(
+    store: FactorStore,
+    values: gtsam.Values,
+    *,
+    chunk: int,
+    max_iterations: int = 100,
+    relative_tolerance: float = 1e-10,
+    absolute_tolerance: float = 1e-12,
+    initial_lambda: float = 1e-5,
+) -> tuple[int, float]:
+    """Move ``values`` (every frame's X, V and landmark's L) to the optimum of the store's
+    graph by Levenberg-Marquardt, each linear system solved ``chunk`` frames at a time.
+
+    The scheme, tolerances and defaults are those of
+    :func:`~hvo_graph.estimators.least_squares.levenberg_marquardt` (module docstring).
+    Returns (iterations used, the largest coordinate of any step taken).
+    """
+    chunks = _Chunks(store, chunk)
+    largest = 0.0
+    error = chunks.error(values)
+    lam = initial_lambda
+    current = values
+    iterations = 0
+    while iterations < max_iterations:
+        iterations += 1
+        while True:
+            candidate, candidate_error, size = chunks.step(current, lam)
+            if candidate_error <= error:
+                lam = max(lam / 10.0, 1e-15)
+                largest = max(largest, size)
+                break
+            lam *= 10.0
+            if lam > 1e10:  # no descent direction left: converged as far as it goes
+                candidate, candidate_error = current, error
+                break
+        decrease = error - candidate_error
+        current, error = candidate, candidate_error
+        if decrease <= relative_tolerance * error + absolute_tolerance:
+            break
+    values.update(current)
+    return iterations, largest
