@@ -43,11 +43,25 @@ from hvo_graph.errors import InputError, as_number
 
 __all__ = [
     "interval_weights",
+    "log_between",
     "mean_velocity_factor",
     "mean_velocity_residual",
     "motion_factor",
     "motion_residual",
 ]
+
+
+def log_between(
+    pose_prev: gtsam.Pose3, pose: gtsam.Pose3
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """phi = Log(T_{k-1}^-1 T_k) and its (6, 6) Jacobians for right perturbations of
+    T_{k-1} and T_k: -J_r^-1(phi) Ad(Exp(-phi)) and J_r^-1(phi) (GTSAM's ``between``
+    and ``Logmap`` derivatives), shared by the motion factors."""
+    d_between = np.empty((6, 6), order="F")
+    relative = pose_prev.between(pose, d_between, None)  # d_between = -Ad(relative^-1)
+    d_log = np.empty((6, 6), order="F")
+    phi = gtsam.Pose3.Logmap(relative, d_log)  # d_log = J_r^-1(phi)
+    return phi, d_log @ d_between, d_log
 
 
 def motion_residual(
@@ -80,12 +94,9 @@ def motion_residual(
     """
     if not jacobians:
         return gtsam.Pose3.Logmap(pose_prev.between(pose)) - (0.5 * dt) * (twist_prev + twist)
-    d_between = np.empty((6, 6), order="F")
-    relative = pose_prev.between(pose, d_between, None)  # d_between = -Ad(relative^-1)
-    d_log = np.empty((6, 6), order="F")
-    phi = gtsam.Pose3.Logmap(relative, d_log)  # d_log = J_r^-1(phi)
+    phi, d_prev, d_pose = log_between(pose_prev, pose)
     d_twist = (-0.5 * dt) * np.eye(6)
-    return phi - (0.5 * dt) * (twist_prev + twist), [d_log @ d_between, d_log, d_twist, d_twist]
+    return phi - (0.5 * dt) * (twist_prev + twist), [d_prev, d_pose, d_twist, d_twist]
 
 
 def motion_factor(
@@ -121,12 +132,7 @@ def motion_factor(
         mean = half_dt * (values.atVector(vp) + values.atVector(vc))
         if H is None:
             return gtsam.Pose3.Logmap(values.atPose3(kp).between(values.atPose3(kc))) - mean
-        d_between = np.empty((6, 6), order="F")
-        relative = values.atPose3(kp).between(values.atPose3(kc), d_between, None)
-        d_log = np.empty((6, 6), order="F")
-        phi = gtsam.Pose3.Logmap(relative, d_log)
-        H[0] = d_log @ d_between
-        H[1] = d_log
+        phi, H[0], H[1] = log_between(values.atPose3(kp), values.atPose3(kc))
         H[2] = d_twist
         H[3] = d_twist
         return phi - mean

@@ -31,6 +31,7 @@ import gtsam
 import numpy as np
 
 from hvo_graph.errors import InputError, as_number
+from hvo_graph.estimators.factors import log_between
 
 __all__ = [
     "JerkNoise",
@@ -82,13 +83,10 @@ def jerk_motion_residual(
     )
     if not jacobians:
         return gtsam.Pose3.Logmap(pose_prev.between(pose)) - mean
-    d_between = np.empty((6, 6), order="F")
-    relative = pose_prev.between(pose, d_between, None)
-    d_log = np.empty((6, 6), order="F")
-    phi = gtsam.Pose3.Logmap(relative, d_log)
+    phi, d_prev, d_pose = log_between(pose_prev, pose)
     d_twist = (-0.5 * dt) * np.eye(6)
     d_rate = (dt * dt / 12.0) * np.eye(6)
-    return phi - mean, [d_log @ d_between, d_log, d_twist, d_twist, -d_rate, d_rate]
+    return phi - mean, [d_prev, d_pose, d_twist, d_twist, -d_rate, d_rate]
 
 
 def jerk_motion_factor(
@@ -118,12 +116,7 @@ def jerk_motion_factor(
         )
         if H is None:
             return gtsam.Pose3.Logmap(values.atPose3(kp).between(values.atPose3(kc))) - mean
-        d_between = np.empty((6, 6), order="F")
-        relative = values.atPose3(kp).between(values.atPose3(kc), d_between, None)
-        d_log = np.empty((6, 6), order="F")
-        phi = gtsam.Pose3.Logmap(relative, d_log)
-        H[0] = d_log @ d_between
-        H[1] = d_log
+        phi, H[0], H[1] = log_between(values.atPose3(kp), values.atPose3(kc))
         H[2] = d_twist
         H[3] = d_twist
         H[4] = -d_rate

@@ -159,7 +159,6 @@ def log_likelihood(
     P[:, :6, :6] = C[0]
     P[:, 6:, 6:] = 1e4 * np.eye(6)
     ll = np.zeros(m)
-    constant = 6.0 * np.log(2.0 * np.pi)
     Pss, Psv, Pvs, Pvv = P[:, :6, :6], P[:, :6, 6:], P[:, 6:, :6], P[:, 6:, 6:]
     for k in range(1, len(t)):
         dt = t[k] - t[k - 1]
@@ -169,25 +168,37 @@ def log_likelihood(
         Psv += dt * Pvv + Q * (dt**2 / 2)
         Pvs[...] = Psv.transpose(0, 2, 1)
         Pvv += Q * dt
-        # update with z = s_k (H = [I 0]): one Cholesky factor L of S; L^-1 by substitution
-        S = P[:, :6, :6] + C[k][None]
-        y = s[k][None] - x[:, :6]
-        L = np.linalg.cholesky(S)
-        L_inv = _lower_inverse(L)
-        z = np.einsum("mij,mj->mi", L_inv, y)
-        d2 = np.sum(z * z, axis=1)
-        ll -= 0.5 * (
-            np.minimum(d2, gate) + 2.0 * np.log(np.diagonal(L, axis1=1, axis2=2)).sum(axis=1)
-        )
-        ll -= 0.5 * constant
-        # gain P H^T S^-1, S^-1 = L^-T L^-1 (M, 12, 6)
-        gain = (P[:, :, :6] @ np.transpose(L_inv, (0, 2, 1))) @ L_inv
-        gain[d2 > gate] = 0.0  # an outlier pose neither updates the state nor inflates Q
-        x += np.einsum("mij,mj->mi", gain, y)
-        P -= gain @ P[:, :6, :]
-        P += P.transpose(0, 2, 1).copy()
-        P *= 0.5
+        ll += _pose_update(x, P, s[k], C[k], gate)
     return ll
+
+
+def _pose_update(
+    x: np.ndarray, P: np.ndarray, z: np.ndarray, R: np.ndarray, gate: float
+) -> np.ndarray:
+    """Kalman update of M states (M, n) and covariances (M, n, n), in place, with the pose
+    z (6,) of covariance R (6, 6) measuring the first six components (H = [I 0]); returns
+    the (M,) log densities of the innovation (gated: beyond ``gate`` it costs the gate
+    and does not update)."""
+    # one Cholesky factor L of S; L^-1 by substitution
+    S = P[:, :6, :6] + R[None]
+    y = z[None] - x[:, :6]
+    L = np.linalg.cholesky(S)
+    L_inv = _lower_inverse(L)
+    w = np.einsum("mij,mj->mi", L_inv, y)
+    d2 = np.sum(w * w, axis=1)
+    log_density = -0.5 * (
+        np.minimum(d2, gate)
+        + 2.0 * np.log(np.diagonal(L, axis1=1, axis2=2)).sum(axis=1)
+        + 6.0 * np.log(2.0 * np.pi)
+    )
+    # gain P H^T S^-1, S^-1 = L^-T L^-1 (M, n, 6)
+    gain = (P[:, :, :6] @ np.transpose(L_inv, (0, 2, 1))) @ L_inv
+    gain[d2 > gate] = 0.0  # an outlier pose neither updates the state nor inflates Q
+    x += np.einsum("mij,mj->mi", gain, y)
+    P -= gain @ P[:, :6, :]
+    P += P.transpose(0, 2, 1).copy()
+    P *= 0.5
+    return log_density
 
 
 def jerk_log_likelihood(
@@ -214,7 +225,6 @@ def jerk_log_likelihood(
     P[:, :6, :6] = C[0]
     P[:, 6:, 6:] = 1e4 * np.eye(12)
     ll = np.zeros(m)
-    constant = 6.0 * np.log(2.0 * np.pi)
     eye = np.eye(6)
     for k in range(1, len(t)):
         dt = t[k] - t[k - 1]
@@ -229,22 +239,7 @@ def jerk_log_likelihood(
         x = x @ F.T
         P = F @ P @ F.T
         P += np.kron(unit, eye)[None] * np.tile(q, 3)[:, None, :]  # Q_k = unit (x) diag(q)
-        S = P[:, :6, :6] + C[k][None]
-        y = s[k][None] - x[:, :6]
-        L = np.linalg.cholesky(S)
-        L_inv = _lower_inverse(L)
-        z = np.einsum("mij,mj->mi", L_inv, y)
-        d2 = np.sum(z * z, axis=1)
-        ll -= 0.5 * (
-            np.minimum(d2, gate) + 2.0 * np.log(np.diagonal(L, axis1=1, axis2=2)).sum(axis=1)
-        )
-        ll -= 0.5 * constant
-        gain = (P[:, :, :6] @ np.transpose(L_inv, (0, 2, 1))) @ L_inv
-        gain[d2 > gate] = 0.0
-        x += np.einsum("mij,mj->mi", gain, y)
-        P -= gain @ P[:, :6, :]
-        P += P.transpose(0, 2, 1).copy()
-        P *= 0.5
+        ll += _pose_update(x, P, s[k], C[k], gate)
     return ll
 
 
