@@ -16,7 +16,8 @@ reference to keyframes. Pipeline per seed (hvo_graph.image_runs.run_image_seed):
    pixel_sigma :data:`PIXEL_SIGMA`, keyframes when the reference points leave);
 5. estimators (:data:`METHODS`): the raw measurements, the paper's Kalman
    filter (paper noisy R_k), the Kalman filter with the front end's R_k, the
-   ISAM2 smoother (smoothed and online) and the fixed-lag smoother;
+   ISAM2 smoother (smoothed and online), the fixed-lag smoother and the
+   tightly coupled smoother (``tight``);
 6. errors against the rendering's ground truth (hvo_graph.eval.metrics) after
    the first ``--skip`` seconds, and over the time before and after the first
    keyframe switch.
@@ -101,10 +102,10 @@ METHODS: tuple[str, ...] = (
     "smoother",
     "smoother-online",
     "fixed-lag",
+    "tight",
 )
-# Not "tight": with the images path's ~200 tracks per frame, one projection factor per
-# pixel made the 5 seeds of 451 frames take over 20 minutes and 2.6 GB (its speed with
-# many points is an open problem; docs/smoother.md gives its cost).
+# "tight" puts one projection factor per pixel in the graph: with the images path's ~200
+# tracks per frame it costs most of the run's time (docs/smoother.md gives its cost).
 
 TRAJECTORY_FIGSIZE = (11.0, 7.5)  # inches; PNG 1650 x 1125 px at 150 dpi
 TRACKS_FIGSIZE = (8.0, 6.6)  # PNG 1200 x 990 px
@@ -287,6 +288,8 @@ def images_markdown(
         "- ISAM2 smoothed / online (`smoother`, `smoother-online`): the factor graph, keyframe "
         "poses as between factors; final values, and each frame right after its update.",
         "- fixed-lag (`fixed-lag`): the same graph in a 1 s window.",
+        "- tight (`tight`): every tracked pixel as a projection factor on a landmark of the "
+        "plane, the same motion model, ISAM2 then the whole-graph solve.",
     ]
     if figures:
         lines += ["", "### Figures", ""]

@@ -18,6 +18,7 @@ from gtsam.symbol_shorthand import X
 
 from hvo_graph.cli import main
 from hvo_graph.errors import InputError
+from hvo_graph.estimators.landmarks import farthest_points
 from hvo_graph.estimators.least_squares import levenberg_marquardt
 from hvo_graph.estimators.registry import build_estimator
 from hvo_graph.estimators.smoother import FactorGraphSmoother
@@ -61,6 +62,42 @@ def test_back_project_returns_the_plane_point_seen():
     # A ray pointing away from the plane meets it behind the camera: none.
     away = gtsam.Pose3(gtsam.Rot3.Rx(np.pi), np.zeros(3))
     assert back_project(away, np.zeros(2), scenario.plane.normal, 2.0) is None
+
+
+def test_farthest_points_maximises_the_nearest_distance_at_every_pick():
+    """Each pick against an exhaustive search: the candidate whose nearest point in use
+    (used points and earlier picks) is farthest."""
+    rng = np.random.default_rng(3)
+    candidates, used = rng.uniform(0, 1, (40, 2)), rng.uniform(0, 1, (3, 2))
+    picks = farthest_points(candidates, used, 6)
+    taken = list(used)
+    for pick in picks:
+        nearest = [min(np.linalg.norm(c - u) for u in taken) for c in candidates]
+        for i in picks[: picks.index(pick)]:
+            nearest[i] = -1.0
+        assert pick == int(np.argmax(nearest))
+        taken.append(candidates[pick])
+    # Nothing in use: the first candidate, then the one farthest from it.
+    line = np.array([[0.0, 0.0], [1.0, 0.0], [2.0, 0.0], [9.0, 0.0], [3.0, 0.0]])
+    assert farthest_points(line, np.zeros((0, 2)), 3) == [0, 3, 4]
+    assert farthest_points(line, np.zeros((0, 2)), 9) == [0, 3, 4, 1, 2]  # 1, 2: a tie
+    assert farthest_points(line, line, 0) == []
+
+
+def test_landmarks_are_capped_per_frame_and_kept_while_tracked():
+    """20 points, at most 8 landmarks per frame: no frame observes more, a landmark
+    stays observed while its track lasts, and the pose still recovers the truth."""
+    scenario = simulate(paper_scenario(seed=1, duration=2.0, num_points=20))
+    tight = TightSmoother(max_landmarks=8, acceleration_sigma=0.1)
+    trajectory = tight.run(frames_of(scenario))
+    per_frame = [keys for _, keys, _, _ in tight._observations]
+    assert max(len(keys) for keys in per_frame) == 8
+    assert tight.counts["landmarks"] == 8  # every point stays in view: the first 8 stay
+    assert all(set(keys) == set(per_frame[0]) for keys in per_frame)
+    errors = summarize(error_series(trajectory, scenario.groundtruth))
+    assert errors.position_rmse < 0.02 and errors.orientation_rmse < 0.5
+    with pytest.raises(InputError, match="max_landmarks"):
+        TightSmoother(max_landmarks=3)
 
 
 def test_noise_free_pixels_give_the_ground_truth():

@@ -58,6 +58,7 @@ from hvo_graph.errors import InputError, as_integer, as_number
 from hvo_graph.estimators.base import Estimator
 from hvo_graph.estimators.choices import TIGHT_SOLVERS
 from hvo_graph.estimators.factors import motion_factor
+from hvo_graph.estimators.landmarks import DEFAULT_MAX_LANDMARKS, back_project, farthest_points
 from hvo_graph.estimators.noise_estimation import ProcessNoiseSchedule
 from hvo_graph.estimators.plane_tracks import DEFAULT_TRACK_CHI2, off_plane_keys
 from hvo_graph.estimators.process_noise import DEFAULT_ACCELERATION_SIGMA, MotionNoise
@@ -107,28 +108,6 @@ _ZERO6 = np.zeros(6)
 _UNIT_CALIBRATION = gtsam.Cal3_S2(1.0, 1.0, 0.0, 0.0, 0.0)
 
 
-def back_project(
-    pose: gtsam.Pose3, m: np.ndarray, normal: np.ndarray, distance: float
-) -> np.ndarray | None:
-    """The point of the plane n^T X = d (in W) seen at normalized coordinates m from T_wc.
-
-    Args:
-        pose: T_wc.
-        m: (2,) normalized image coordinates (x/z, y/z).
-        normal, distance: n* (3,) and d* of the plane in W.
-    Returns:
-        (3,) the point in W, or None when the ray does not meet the plane in front.
-    """
-    R = pose.rotation().matrix()
-    p = np.asarray(pose.translation(), dtype=float)
-    ray = R @ np.array([m[0], m[1], 1.0])
-    along = float(normal @ ray)
-    if abs(along) < 1e-9:
-        return None
-    s = (distance - float(normal @ p)) / along
-    return p + s * ray if s > 0 else None
-
-
 class TightSmoother(Estimator):
     """Pixels of plane points fused with the motion model in one GTSAM graph.
 
@@ -153,6 +132,10 @@ class TightSmoother(Estimator):
             docstring; :data:`~hvo_graph.estimators.plane_tracks.DEFAULT_TRACK_CHI2`).
         relinearize_threshold, relinearize_skip: ISAM2's relinearization settings.
         max_iterations: most Levenberg-Marquardt iterations of the final solve.
+        max_landmarks: most landmarks observed per frame (None: every point). Tracks
+            that already have a landmark keep it; new ones fill the free places,
+            each the farthest (in the image) from the points already used, so the
+            landmarks stay spread over the view (:data:`DEFAULT_MAX_LANDMARKS`).
 
     Frames must carry ``points`` (:class:`~hvo_graph.types.PointObservations`, made
     by :class:`~hvo_graph.frontend.MeasurementFrontEnd`); a frame without them (the
@@ -176,6 +159,7 @@ class TightSmoother(Estimator):
         relinearize_threshold: float = 0.05,
         relinearize_skip: int = 10,
         max_iterations: int = 100,
+        max_landmarks: int | None = DEFAULT_MAX_LANDMARKS,
     ) -> None:
         super().__init__()
         if solver not in TIGHT_SOLVERS:
@@ -198,6 +182,9 @@ class TightSmoother(Estimator):
         threshold = as_number(relinearize_threshold, "relinearize_threshold", above=0.0)
         skip = as_integer(relinearize_skip, "relinearize_skip", 1)
         max_iterations = as_integer(max_iterations, "max_iterations", 1)
+        self.max_landmarks = (
+            None if max_landmarks is None else as_integer(max_landmarks, "max_landmarks", 4)
+        )
         self.backend: Backend
         if solver == "batch":
             self.backend = BatchBackend(
@@ -338,10 +325,8 @@ class TightSmoother(Estimator):
         distance = float(points.distance)
         self._plane = (normal, distance)
         added = []
-        coordinates = np.asarray(points.m, dtype=float)
-        for track, m in zip(np.asarray(points.ids).tolist(), coordinates, strict=True):
-            if track in self.rejected_tracks:
-                continue
+        tracks, coordinates = self._admitted(np.asarray(points.ids), np.asarray(points.m, float))
+        for track, m in zip(tracks, coordinates, strict=True):
             key = self._landmarks.get(track)
             if key is None or not self._live(key):
                 point = back_project(pose_guess, m, normal, distance)
@@ -361,6 +346,23 @@ class TightSmoother(Estimator):
         m = np.array([m for _, _, m in added])  # the final solve's copy, as numbers:
         self.backend.store.add_observations([key for _, key, _ in added], m, float(points.sigma))
         return added
+
+    def _admitted(self, ids: np.ndarray, m: np.ndarray) -> tuple[list[int], np.ndarray]:
+        """The frame's observations to use: not rejected, and at most ``max_landmarks``
+        (tracks with a live landmark first, then new ones farthest-point first)."""
+        tracks = ids.tolist()
+        usable = [i for i, track in enumerate(tracks) if track not in self.rejected_tracks]
+        if self.max_landmarks is None or len(usable) <= self.max_landmarks:
+            return [tracks[i] for i in usable], m[usable]
+        kept, new = [], []
+        for i in usable:
+            key = self._landmarks.get(tracks[i])
+            (kept if key is not None and self._live(key) else new).append(i)
+        kept = kept[: self.max_landmarks]
+        picks = farthest_points(m[new], m[kept], self.max_landmarks - len(kept))
+        kept += [new[i] for i in picks]
+        kept.sort()
+        return [tracks[i] for i in kept], m[kept]
 
     def _pixel_noise_model(self, sigma: float) -> gtsam.noiseModel.Base:
         model = self._pixel_noise.get(sigma)
