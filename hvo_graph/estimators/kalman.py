@@ -33,6 +33,7 @@ from collections.abc import Iterable, Sequence
 import numpy as np
 
 from hvo_graph.errors import InputError, as_covariance, as_integer, as_vector
+from hvo_graph.estimators._kalman_run import fast_run_applies, filter_frames
 from hvo_graph.estimators.base import Estimator
 from hvo_graph.estimators.kalman_model import (
     ANGLES,
@@ -305,6 +306,10 @@ class KalmanBaseline(Estimator):
         if self.auto_process_noise and not self._online:
             fit = estimate_process_noise(frames, default=DEFAULT_ACCELERATION_SIGMA)
             self.process_noise = kalman_process_noise(fit.acceleration_sigma)
+        if fast_run_applies(self):  # every frame up to the first keyframe-relative pose
+            frames = frames[filter_frames(self, frames) :]
+            if not frames:
+                return self.trajectory()
         if not self.world_frame_velocity and self.r_preset != "measured":
             # y_k of every frame converted at once; update() takes each frame's own (the
             # frame objects stay alive in ``frames``, so their ids stay theirs).

@@ -363,32 +363,50 @@ def _prepared_measurements(frames: Sequence[FrameMeasurement]) -> dict[int, Stat
     world-frame pose and a twist, the arrays checked and converted for all frames at
     once; by ``id(frame)``. Frames that fail a check are left out: the per-frame call
     raises its message for them, in frame order."""
-    both = [f for f in frames if f.pose is not None and f.velocity is not None]
-    both = [f for f in both if f.pose.reference == 0]  # type: ignore[union-attr]
+    prepared, Z = _prepared_arrays(frames)
+    return {
+        id(frames[k]): StateMeasurement(_ALL_ROWS, Z[k], _NOTHING)
+        for k in np.flatnonzero(prepared).tolist()
+    }
+
+
+def _prepared_arrays(frames: Sequence[FrameMeasurement]) -> tuple[np.ndarray, np.ndarray]:
+    """(prepared (K,) bool, Z (K, 12)): y_k of :func:`_prepared_measurements` of frame k in
+    Z[k] where ``prepared[k]`` (every row measured); the other frames are left to the
+    per-frame conversion."""
+    K = len(frames)
+    prepared, Z = np.zeros(K, dtype=bool), np.empty((K, 12))
+    at = [
+        k
+        for k, f in enumerate(frames)
+        if f.pose is not None and f.velocity is not None and f.pose.reference == 0
+    ]
+    both = [frames[k] for k in at]
     n = len(both)
     try:
         R = np.array([f.pose.rotation for f in both], dtype=float)  # type: ignore[union-attr]
         p = np.array([f.pose.position for f in both], dtype=float)  # type: ignore[union-attr]
         twist = np.array([f.velocity.twist for f in both], dtype=float)  # type: ignore[union-attr]
     except (ValueError, TypeError):
-        return {}
+        return prepared, Z
     if n == 0 or R.shape != (n, 3, 3) or p.shape != (n, 3) or twist.shape != (n, 6):
-        return {}
+        return prepared, Z
     ok = np.isfinite(R).all(axis=(1, 2)) & np.isfinite(p).all(axis=1)
     ok &= np.isfinite(twist).all(axis=1)
     pitch = np.arcsin(np.clip(-R[:, 1, 2], -1.0, 1.0))  # as _euler_angles, every frame
     ok &= (-MAX_ABS_PITCH <= pitch) & (pitch <= MAX_ABS_PITCH)
     r02, r22, r10, r11 = (R[:, i, j].tolist() for i, j in ((0, 2), (2, 2), (1, 0), (1, 1)))
     yaw, roll = [0.0] * n, [0.0] * n
-    kept = []
     for k in np.flatnonzero(ok).tolist():
         if math.hypot(r10[k], r11[k]) >= GIMBAL_LOCK_COS:
             yaw[k], roll[k] = math.atan2(r02[k], r22[k]), math.atan2(r10[k], r11[k])
-            kept.append(k)
-    Z = np.empty((n, 12))
-    Z[:, 0:3], Z[:, 3], Z[:, 4], Z[:, 5] = p, pitch, yaw, roll
-    Z[:, 6:9], Z[:, 9:12] = twist[:, 3:], twist[:, :3]
-    return {id(both[k]): StateMeasurement(_ALL_ROWS, Z[k], _NOTHING) for k in kept}
+        else:
+            ok[k] = False
+    rows = np.asarray(at, dtype=int)
+    Z[rows, 0:3], Z[rows, 3], Z[rows, 4], Z[rows, 5] = p, pitch, yaw, roll
+    Z[rows, 6:9], Z[rows, 9:12] = twist[:, 3:], twist[:, :3]
+    prepared[rows] = ok
+    return prepared, Z
 
 
 def state_to_tangent_jacobian(x: np.ndarray, *, world_frame_velocity: bool = False) -> np.ndarray:

@@ -58,6 +58,38 @@ class StateLog:
             self._with_covariance += 1
         self._n += 1
 
+    def extend(
+        self,
+        index: np.ndarray,
+        t: np.ndarray,
+        rotations: np.ndarray,
+        positions: np.ndarray,
+        twists: np.ndarray,
+        covariances: np.ndarray,
+    ) -> None:
+        """Append n states at once: what n :meth:`append` calls of their
+        :class:`StateEstimate` would keep. Shapes (n,), (n,), (n, 3, 3), (n, 3), (n, 6),
+        (n, 12, 12)."""
+        n = len(index)
+        need = self._n + n
+        if need > len(self._index):
+            capacity = max(2 * len(self._index), need)
+            self._index.resize(capacity, refcheck=False)
+            self._values.resize((capacity, 19), refcheck=False)
+            if self._covariance is not None:
+                self._covariance.resize((capacity, 12, 12), refcheck=False)
+        if self._covariance is None:
+            self._covariance = np.empty((len(self._index), 12, 12))
+        rows = slice(self._n, need)
+        self._index[rows] = index
+        self._values[rows, 0] = t
+        self._values[rows, 1:10] = rotations.reshape(n, 9)
+        self._values[rows, 10:13] = positions
+        self._values[rows, 13:19] = twists
+        self._covariance[rows] = covariances
+        self._with_covariance += n
+        self._n = need
+
     def last(self) -> tuple[int, float]:
         """(index, t) of the latest state (the log must not be empty)."""
         return int(self._index[self._n - 1]), float(self._values[self._n - 1, 0])
