@@ -176,49 +176,67 @@ class BatchTransfer:
             - np.einsum("ni,j->nij", m_ref, n) / depth[:, None, None] ** 2
         )
         self.dXstar2 = dXstar[:, :, :2]
+        #: (3, 2N): dX*/dm* (the m* x, y columns) of every point side by side.
+        self._dXstar_rows = self.dXstar2.transpose(1, 0, 2).reshape(3, 2 * len(m_ref))
         self.current = m_cur[..., :2]
         self.sigma = sigma
 
     def linearize(self, R: np.ndarray, T: np.ndarray) -> tuple[tuple[np.ndarray, ...], np.ndarray]:
-        """((J, JtW, residual, A, cov), bad (F,)) as ``PlaneTransfer.linearize`` per frame;
-        ``bad`` where a transferred point has non-positive depth (or NaN).
+        """((J, JtW, residual, A, cov, inv), bad (F,)) as ``PlaneTransfer.linearize`` per
+        frame (inv: the (F, N, 2, 2) Sigma_i^-1); ``bad`` where a transferred point has
+        non-positive depth (or NaN).
 
-        J = P [X^ | -I] and the 2 x 2 inverses are written out entry by entry (the same
-        products as the matrix calls, in one array operation each)."""
+        J = P [X^ | -I], A = P R dX*/dm*, Sigma_i = s^2 (I + A A^T) and its inverse are
+        written out entry by entry: numpy's stacked matmul pays per 2 x 2 block, and
+        F N blocks are thousands. The same numbers to rounding."""
         X = self.X_star @ _tr(R) + T[:, None, :]
         x, y, z = X[..., 0], X[..., 1], X[..., 2]
         bad = ~(z.min(axis=1) > 0)
         iz = 1.0 / z
         u, v = x * iz, y * iz  # pi(X)
-        P = np.zeros((*z.shape, 2, 3))
-        P[..., 0, 0] = P[..., 1, 1] = iz
-        P[..., 0, 2] = -u * iz
-        P[..., 1, 2] = -v * iz
-        J = np.empty((*z.shape, 2, 6))
+        uz, vz = u * iz, v * iz
+        F, N = z.shape
+        J = np.empty((F, N, 2, 6))
         J[..., 0, 0], J[..., 0, 1], J[..., 0, 2] = u * v, -1.0 - u * u, v
         J[..., 1, 0], J[..., 1, 1], J[..., 1, 2] = 1.0 + v * v, -u * v, -u
-        J[..., :, 3:] = -P
+        J[..., 0, 3], J[..., 0, 4], J[..., 0, 5] = -iz, 0.0, uz
+        J[..., 1, 3], J[..., 1, 4], J[..., 1, 5] = 0.0, -iz, vz
         residual = self.current - np.stack((u, v), axis=-1)
-        A = (P @ R[:, None]) @ self.dXstar2
-        cov = self.sigma**2 * (np.eye(2) + A @ _tr(A))
-        a, b, c, d = cov[..., 0, 0], cov[..., 0, 1], cov[..., 1, 0], cov[..., 1, 1]
-        inv = (
-            np.stack((d, -b, -c, a), axis=-1).reshape(cov.shape) / (a * d - b * c)[..., None, None]
+        M = (R @ self._dXstar_rows).reshape(F, 3, N, 2)  # R dX*/dm*, point by point
+        A = np.empty((F, N, 2, 2))
+        A[..., 0, :] = iz[..., None] * M[:, 0] - uz[..., None] * M[:, 2]
+        A[..., 1, :] = iz[..., None] * M[:, 1] - vz[..., None] * M[:, 2]
+        a, b, c, d = A[..., 0, 0], A[..., 0, 1], A[..., 1, 0], A[..., 1, 1]
+        s2 = self.sigma**2
+        c00, c01, c11 = (
+            s2 * (1.0 + (a * a + b * b)),
+            s2 * (a * c + b * d),
+            s2 * (1.0 + (c * c + d * d)),
         )
-        JtW = _tr(J) @ inv
-        return (J, JtW, residual, A, cov), bad
+        cov = np.stack((c00, c01, c01, c11), axis=-1).reshape(F, N, 2, 2)
+        det = c00 * c11 - c01 * c01
+        i00, i01, i11 = c11 / det, -c01 / det, c00 / det
+        inv = np.stack((i00, i01, i01, i11), axis=-1).reshape(F, N, 2, 2)
+        JtW = np.empty((F, N, 6, 2))
+        j0, j1 = J[..., 0, :], J[..., 1, :]
+        JtW[..., 0] = j0 * i00[..., None] + j1 * i01[..., None]
+        JtW[..., 1] = j0 * i01[..., None] + j1 * i11[..., None]
+        return (J, JtW, residual, A, cov, inv), bad
 
     def normal_equations(
         self, R: np.ndarray, T: np.ndarray, huber: float | None, w: np.ndarray
     ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """(info (F, 6, 6), grad (F, 6), bad (F,)) as ``PlaneTransfer.normal_equations`` on
         the points of weight 1."""
-        (J, JtW, r, _, cov), bad = self.linearize(R, T)
+        (J, JtW, r, _, _, inv), bad = self.linearize(R, T)
         if huber is not None:
-            d = np.sqrt(np.einsum("fni,fni->fn", r, np.linalg.solve(cov, r[..., None])[..., 0]))
+            d = np.sqrt(_quadratic(inv, r))
             w = w * np.minimum(1.0, huber / np.maximum(d, 1e-12))
         JtW = JtW * w[..., None, None]
-        return np.sum(JtW @ J, axis=1), np.einsum("fnij,fnj->fi", JtW, r), bad
+        F, N = w.shape
+        rows = _point_columns(JtW)  # (F, 6, 2N)
+        info = rows @ J.reshape(F, 2 * N, 6)
+        return info, (rows @ r.reshape(F, 2 * N, 1))[..., 0], bad
 
     def refine(
         self, R: np.ndarray, T: np.ndarray, steps: int, huber: float | None, w: np.ndarray
@@ -238,11 +256,17 @@ class BatchTransfer:
 
     @staticmethod
     def chi2(lin: tuple[np.ndarray, ...], info: np.ndarray) -> np.ndarray:
-        """(F, N) ``PlaneTransfer.chi2`` per frame."""
-        J, _, residual, _, cov = lin
-        cov = cov + J @ np.linalg.solve(info[:, None], _tr(J))
-        whitened = np.linalg.solve(cov, residual[..., None])[..., 0]
-        return np.einsum("fni,fni->fn", residual, whitened)
+        """(F, N) ``PlaneTransfer.chi2`` per frame: r^T (Sigma_i + J_i info^-1 J_i^T)^-1 r."""
+        J, _, residual, _, cov, _ = lin
+        F, N = J.shape[:2]
+        G = (J.reshape(F, 2 * N, 6) @ np.linalg.inv(info)).reshape(F, N, 2, 6)
+        j0, j1 = J[..., 0, :], J[..., 1, :]
+        c00 = cov[..., 0, 0] + np.sum(G[..., 0, :] * j0, axis=-1)
+        c01 = cov[..., 0, 1] + np.sum(G[..., 0, :] * j1, axis=-1)
+        c11 = cov[..., 1, 1] + np.sum(G[..., 1, :] * j1, axis=-1)
+        det = c00 * c11 - c01 * c01
+        r0, r1 = residual[..., 0], residual[..., 1]
+        return (c11 * r0 * r0 - 2.0 * c01 * r0 * r1 + c00 * r1 * r1) / det
 
     def noise(
         self, lin: tuple[np.ndarray, ...], w: np.ndarray
@@ -250,13 +274,29 @@ class BatchTransfer:
         """(covariance, reference covariance, reference Jacobian (F, 6, 2N): zero columns for
         the points of weight 0), as ``PlaneTransfer.noise`` per frame on the points of
         weight 1."""
-        J, JtW, _, A, _ = lin
+        J, JtW, _, A, _, _ = lin
         JtW = JtW * w[..., None, None]
         F, n = J.shape[:2]
         sigma = self.sigma
-        info = np.sum(JtW @ J, axis=1)
-        H = np.linalg.solve(info, JtW.transpose(0, 2, 1, 3).reshape(F, 6, 2 * n))
-        G = np.linalg.solve(info, (JtW @ A).transpose(0, 2, 1, 3).reshape(F, 6, 2 * n))
+        rows = _point_columns(JtW)
+        info = rows @ J.reshape(F, 2 * n, 6)
+        JtWA = np.empty_like(JtW)  # J_i^T Sigma_i^-1 A_i
+        JtWA[..., 0] = JtW[..., 0] * A[..., None, 0, 0] + JtW[..., 1] * A[..., None, 1, 0]
+        JtWA[..., 1] = JtW[..., 0] * A[..., None, 0, 1] + JtW[..., 1] * A[..., None, 1, 1]
+        H = np.linalg.solve(info, rows)
+        G = np.linalg.solve(info, _point_columns(JtWA))
         current, reference = sigma**2 * (H @ _tr(H)), sigma**2 * (G @ _tr(G))
         covariance = 0.5 * (current + _tr(current) + reference + _tr(reference))
         return covariance, 0.5 * (reference + _tr(reference)), -sigma * G
+
+
+def _point_columns(M: np.ndarray) -> np.ndarray:
+    """(F, 6, 2N): the (F, N, 6, 2) blocks side by side (columns 2i, 2i+1: point i)."""
+    F, N = M.shape[:2]
+    return M.transpose(0, 2, 1, 3).reshape(F, 6, 2 * N)
+
+
+def _quadratic(inv: np.ndarray, r: np.ndarray) -> np.ndarray:
+    """(F, N) r_i^T inv_i r_i of (F, N, 2, 2) symmetric inv and (F, N, 2) r."""
+    r0, r1 = r[..., 0], r[..., 1]
+    return inv[..., 0, 0] * r0 * r0 + 2.0 * inv[..., 0, 1] * r0 * r1 + inv[..., 1, 1] * r1 * r1
