@@ -93,6 +93,8 @@ def _loop(
     H_full = _selection(np.arange(12))[0]
     prepared, Z = _prepared_arrays(frames)
     prepared = prepared.tolist()  # indexed per frame
+    # np.dot: the same BLAS products as ``@`` for these 2-D arrays, at less cost per call.
+    dot = np.dot
     x, P = kf.x, kf.P
     t_prev = kf._t_prev
     last = kf._online.last() if kf._online else None
@@ -114,9 +116,9 @@ def _loop(
                 transition_matrix(x[5], x[3], dt)  # raises with its message
             F = _transition(x, dt)
             Q = kf._process_covariance(dt)
-            x = F @ x
+            x = dot(F, x)
             _wrap_angles(x)
-            P = F @ P @ F.T + Q
+            P = dot(dot(F, P), F.T) + Q
             kf.x, kf.P, kf.F, kf.Q = x, P, F, Q
         kf._t_prev = t_prev = t
         kf.H = kf.R = kf.y = kf.S = kf.K = None
@@ -127,10 +129,10 @@ def _loop(
             _wrap_angles(y)  # the angle rows of y: y[3:6], as in x
             S = P + R_full
             K = np.linalg.solve(S, P).T
-            x = x + K @ y
+            x = x + dot(K, y)
             _wrap_angles(x)
             I_KH = _I12 - K
-            P = I_KH @ P @ I_KH.T + (K * full_r) @ K.T
+            P = dot(dot(I_KH, P), I_KH.T) + dot(K * full_r, K.T)
             P = 0.5 * (P + P.T)
             kf.x, kf.P = x, P
             kf.H, kf.R, kf.y, kf.S, kf.K = H_full, R_full, y, S, K

@@ -63,7 +63,10 @@ def dlt(m_ref: np.ndarray, m_cur: np.ndarray, w: np.ndarray) -> tuple[np.ndarray
     b = (m_cur @ _tr(T_cur)) * w[..., None]
     # The identity systems of each point set only say whether it is degenerate; frames
     # with the same reference weights share the reference's (computed once).
-    weights, first = np.unique(w, axis=0, return_inverse=True)[:2] if F > 1 else (w, [0])
+    if F == 1 or w.all():  # one set (every point used: the usual case)
+        weights, first = w[:1], np.zeros(F, dtype=int)
+    else:
+        weights, first = np.unique(w, axis=0, return_inverse=True)[:2]
     a_sets = (m_ref @ _tr(hartley(m_ref[None], weights))) * weights[..., None]
     ratio_ref = _ratios(_system(a_sets, a_sets))[np.ravel(first)]
     ratio_cur = _ratios(_system(b, b))
@@ -141,14 +144,21 @@ def retract(R: np.ndarray, T: np.ndarray, delta: np.ndarray) -> tuple[np.ndarray
     W = np.zeros((len(w), 3, 3))
     W[:, _SKEW_ROWS, _SKEW_COLS] = w[:, _SKEW_SRC] * _SKEW_SIGN
     Rd = np.eye(3) + A[:, None, None] * W + B[:, None, None] * (W @ W)
-    Wv = np.cross(w, v)
-    td = v + B[:, None] * Wv + C[:, None] * np.cross(w, Wv)
+    Wv = _cross(w, v)
+    td = v + B[:, None] * Wv + C[:, None] * _cross(w, Wv)
     R_wc = _tr(R)
     p = -(R_wc @ T[..., None])[..., 0]
     R_new_wc = R_wc @ Rd
     p_new = p + (R_wc @ td[..., None])[..., 0]
     R_new = _tr(R_new_wc)
     return R_new, -(R_new @ p_new[..., None])[..., 0]
+
+
+def _cross(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """(F, 3) row-wise a x b: np.cross's products, without its axis handling."""
+    a0, a1, a2 = a[:, 0], a[:, 1], a[:, 2]
+    b0, b1, b2 = b[:, 0], b[:, 1], b[:, 2]
+    return np.stack((a1 * b2 - a2 * b1, a2 * b0 - a0 * b2, a0 * b1 - a1 * b0), axis=1)
 
 
 class BatchTransfer:
