@@ -140,3 +140,53 @@ def test_a_reused_pose_fit_equals_a_fresh_one():
     assert all(map(close, reused.normal_equations(R, T), fresh.normal_equations(R, T)))
     other_plane = Plane(plane.distance, plane.normal)
     assert PlaneTransfer.reuse(kept, m_ref, m_cur, other_plane, 1e-3).plane is other_plane
+
+
+@pytest.mark.parametrize("n_points", [4, 20])
+def test_batched_pose_fit_equals_the_per_frame_one(n_points):
+    """The stacked fit (_fit_batch, entry by entry 2 x 2 algebra) against PlaneTransfer on
+    each frame: linearization, Huber and point-subset normal equations, chi^2, noise
+    (relative to each array's largest entry: covariances are ~1e-8)."""
+    from hvo_graph.geometry._fit_batch import BatchTransfer
+
+    def close(a, b) -> bool:
+        a, b = np.asarray(a), np.asarray(b)
+        return a.shape == b.shape and np.max(np.abs(a - b)) <= 1e-10 * np.max(np.abs(b))
+
+    m_ref, m_cur, plane, R, T = plane_scene(n_points, seed=3 * n_points)
+    rng = np.random.default_rng(n_points)
+    frames = 5
+    m = np.repeat(m_cur[None], frames, axis=0)
+    m[..., :2] += 2e-3 * rng.standard_normal((frames, n_points, 2))
+    m[1, 0, :2] += 0.05  # an outlier: the Huber weights and the gate see it
+    motions = [retract_motion(R, T, 0.02 * rng.standard_normal(6)) for _ in range(frames)]
+    Rs, Ts = np.array([r for r, _ in motions]), np.array([t for _, t in motions])
+    w = np.ones((frames, n_points))
+    w[2, 1] = 0.0  # a point left out of one frame's fit
+    sigma = 1e-3
+    batch = BatchTransfer(m_ref, m, plane.normal, plane.distance, sigma)
+    (J, JtW, residual, A, cov, inv), bad = batch.linearize(Rs, Ts)
+    assert not bad.any()
+    info_h, grad_h, _ = batch.normal_equations(Rs, Ts, 2.0, w)
+    info, _, _ = batch.normal_equations(Rs, Ts, None, w)
+    chi2 = batch.chi2((J, JtW, residual, A, cov, inv), info)
+    noise = batch.noise((J, JtW, residual, A, cov, inv), w)
+    for k in range(frames):
+        one = PlaneTransfer(m_ref, m[k], plane, sigma)
+        lin = one.linearize(Rs[k], Ts[k])
+        for got, want in zip(
+            (J, JtW, residual, A, cov), (lin.J, lin.JtW, lin.residual, lin.A, lin.cov), strict=True
+        ):
+            assert close(got[k], want)
+        assert close(inv[k], np.linalg.inv(lin.cov))
+        used = w[k] > 0
+        sub = one.subset(used)
+        want_h = sub.normal_equations(Rs[k], Ts[k], 2.0)
+        assert close(info_h[k], want_h[0]) and close(grad_h[k], want_h[1])
+        want_info = sub.normal_equations(Rs[k], Ts[k])[0]
+        assert close(info[k], want_info)
+        assert close(chi2[k], one.chi2(lin, want_info))
+        want_noise = sub.noise(sub.linearize(Rs[k], Ts[k]))
+        assert close(noise[0][k], want_noise[0]) and close(noise[1][k], want_noise[1])
+        assert close(noise[2][k][:, np.repeat(used, 2)], want_noise[2])
+        assert not noise[2][k][:, np.repeat(~used, 2)].any()
