@@ -313,12 +313,14 @@ def _measure(
     xy = m[..., :2] / m[..., 2:3]
     out = []
     keyframe: dict[str, np.ndarray] = {}
+    all_kept = keep.all(axis=1).tolist()
     for k, obs in enumerate(block[:F]):
-        kept, jacobian, seen = keep[k], shared_jacobian[k], slice(None)
+        kept, jacobian, seen_ids, m_seen = keep[k], shared_jacobian[k], ids, xy[k]
         kept_ids = shared
-        if not kept.all():
+        if not all_kept[k]:
             kept_ids, jacobian = shared[kept], jacobian[:, np.repeat(kept, 2)]
             seen = ~np.isin(ids, shared[~kept])
+            seen_ids, m_seen = ids[seen], m_seen[seen]
         if ref.index != front._world_index:
             keyframe = {
                 "reference_rotation": ref.R.T.copy(),
@@ -336,11 +338,7 @@ def _measure(
             **keyframe,
         )
         points = PointObservations(
-            ids=ids[seen].copy(),
-            m=xy[k][seen],
-            sigma=front._sigma,
-            normal=front._normal,
-            distance=front.plane.distance,
+            seen_ids.copy(), m_seen, front._sigma, front._normal, front.plane.distance
         )
         rejected = len(obs.ids) - len(ids) + len(shared) - len(kept_ids)
         out.append(
@@ -410,9 +408,10 @@ def _velocities(
     mid = 0.5 * (t0 + t)
     out: list[VelocityMeasurement | None] = []
     limit = cfg.outlier_chi2 if gated else None
-    for k in range(F):
-        if plain[k]:
-            out.append(VelocityMeasurement(twist[k], covariance[k], mid[k], dt[k]))
+    rows = zip(plain.tolist(), twist, covariance, mid.tolist(), dt.tolist(), strict=True)
+    for k, (is_plain, twist_k, covariance_k, mid_k, dt_k) in enumerate(rows):
+        if is_plain:
+            out.append(VelocityMeasurement(twist_k, covariance_k, mid_k, dt_k))
             continue
         motions = [(R0[k], T0[k]), (Rw[k], Tw[k])]
         plane = mid_interval_plane(motions, normal, distance)
