@@ -97,6 +97,9 @@ class FeatureTracker:
         self.camera = camera
         self.config = config or TrackerConfig()
         self.target = target
+        # The camera for the pinhole <-> raw pixel maps, None when they are the identity
+        # (no distortion): the maps then skip the per-call check.
+        self._lens = camera if camera.has_distortion else None
         # The target's corners in the last image (raw pixels, board points), or None.
         self._found: tuple[np.ndarray, np.ndarray] | None = None
         self._index = 0
@@ -140,7 +143,7 @@ class FeatureTracker:
         if self._t is not None and not t > self._t:
             raise InputError(f"{name}: time {t} does not increase (previous {self._t})")
         found = detect_target(gray, self.target) if self.target is not None else None
-        pinhole = pinhole_image(self.camera, gray)
+        pinhole = pinhole_image(self._lens, gray)
         if self._image is not None and len(self._points):
             keep, points = self._follow(gray, pinhole, self._points, found)
             if self.config.refine_max_px is not None:
@@ -180,7 +183,7 @@ class FeatureTracker:
         assert self._pinhole is not None  # set by the previous frame
         self._lost = LostTracks(
             self._index - 1, self._pinhole, self._found, self._ids[lost],
-            pinhole_pixels(self.camera, self._points[lost]), self._birth[lost],
+            pinhole_pixels(self._lens, self._points[lost]), self._birth[lost],
             self._birth_uv[lost], {b: self._birth_images[b] for b in births},
             {b: self._warps[b] for b in births},
         )  # fmt: skip
@@ -228,7 +231,7 @@ class FeatureTracker:
             source,
             target,
             points.reshape(-1, 1, 2).astype(np.float32),
-            None if guess is None else guess.reshape(-1, 1, 2).astype(np.float32).copy(),
+            None if guess is None else guess.reshape(-1, 1, 2).astype(np.float32),
             winSize=self._window,
             maxLevel=self.config.lk_levels if levels is None else levels,
             criteria=self._criteria,
@@ -281,10 +284,14 @@ class FeatureTracker:
         """
         c = self.config
         p1, ok = self._lk(previous, current, p0)
-        back, ok_back = self._lk(current, previous, p1)
-        fb_error = np.linalg.norm(back - p0, axis=1)
-        keep = ok & ok_back & (fb_error < c.fb_threshold_px)
-        keep &= self.camera.in_view(np.where(ok[:, None], p1, -1e9), margin=c.border_margin_px)
+        # Back only what went forward: each point is tracked on its own, so the others'
+        # results are the same, and a lost track costs no second search.
+        keep = ok & self.camera.in_view(p1, margin=c.border_margin_px)
+        idx = np.flatnonzero(keep)
+        if len(idx):
+            back, ok_back = self._lk(current, previous, p1[idx])
+            fb_error = np.linalg.norm(back - p0[idx], axis=1)
+            keep[idx] = ok_back & (fb_error < c.fb_threshold_px)
         return self._plane_check(p0, p1, keep), p1.astype(np.float32)
 
     def _track_guided(
@@ -297,7 +304,7 @@ class FeatureTracker:
         q1, ok = guided_alignment(
             previous,
             current,
-            pinhole_pixels(self.camera, p0),
+            pinhole_pixels(self._lens, p0),
             H0,
             window=c.lk_window,
             levels=min(c.lk_levels, 2),
@@ -306,7 +313,7 @@ class FeatureTracker:
             fb_threshold_px=c.fb_threshold_px,
         )
         p1 = np.full_like(q1, -1e9)
-        p1[ok] = raw_pixels(self.camera, q1[ok])
+        p1[ok] = raw_pixels(self._lens, q1[ok])
         keep = ok & self.camera.in_view(p1, margin=c.border_margin_px)
         return self._plane_check(p0, p1, keep), p1.astype(np.float32)
 
@@ -316,8 +323,8 @@ class FeatureTracker:
         c = self.config
         if c.ransac_threshold_px is not None and np.count_nonzero(keep) >= 4:
             idx = np.flatnonzero(keep)
-            src = pinhole_pixels(self.camera, p0[idx])
-            dst = pinhole_pixels(self.camera, p1[idx])
+            src = pinhole_pixels(self._lens, p0[idx])
+            dst = pinhole_pixels(self._lens, p1[idx])
             H, inliers = cv2.findHomography(
                 src, dst, cv2.RANSAC, c.ransac_threshold_px, maxIters=2000, confidence=0.999
             )
@@ -340,44 +347,81 @@ class FeatureTracker:
         ``refine_max_px`` are dropped."""
         c = self.config
         assert c.refine_max_px is not None
-        size = (self.camera.width, self.camera.height)
         p1 = p1.copy()
         # In pinhole pixels (the undistorted images), where the plane maps by a homography.
         q0 = np.zeros((len(p0), 2))
         q1 = np.zeros((len(p1), 2))
-        q0[keep], q1[keep] = (pinhole_pixels(self.camera, p[keep]) for p in (p0, p1))
-        step = None
-        if np.count_nonzero(keep) >= 4:
-            step, _ = cv2.findHomography(q0[keep], q1[keep], 0)
+        q0[keep], q1[keep] = (pinhole_pixels(self._lens, p[keep]) for p in (p0, p1))
+        kept = keep.copy()  # keep loses the groups' failures below; step uses all tracks
+        step: np.ndarray | None = None  # all tracks' frame-to-frame homography, when needed
         for b in np.unique(self._birth[keep]).tolist():
             idx = np.flatnonzero(keep & (self._birth == b))
             first = self._birth_uv[idx].astype(np.float64)
             G = None
             if len(idx) >= _MIN_GROUP_FIT:
                 G, _ = cv2.findHomography(first, q1[idx], 0)
+            if G is None and step is None and np.count_nonzero(kept) >= 4:
+                step, _ = cv2.findHomography(q0[kept], q1[kept], 0)
             if G is None and step is not None:
                 G = step @ self._warps[b]
             if G is None:
                 continue  # nothing to warp with: keep the frame-to-frame result
             self._warps[b] = G
-            # Replicated borders: a black frame would be an edge that pulls the LK windows.
-            warped = cv2.warpPerspective(
-                self._birth_images[int(b)],
-                G,
-                size,
-                flags=cv2.INTER_LINEAR,
-                borderMode=cv2.BORDER_REPLICATE,
-            )
             predicted = cv2.perspectiveTransform(first.reshape(-1, 1, 2), G).reshape(-1, 2)
+            (x0, y0, x1, y1) = self._window_box(np.vstack((predicted, q1[idx])))
+            warped = self._warp_box(self._birth_images[int(b)], G, (x0, y0, x1, y1))
+            corner = np.array([x0, y0], dtype=np.float64)
             # No pyramid: the frame-to-frame result is within a fraction of a pixel.
-            aligned, ok = self._lk(warped, current, predicted, guess=q1[idx], levels=0)
+            aligned, ok = self._lk(
+                warped,
+                current[y0:y1, x0:x1],
+                predicted - corner,
+                guess=q1[idx] - corner,
+                levels=0,
+            )
+            aligned += corner
             ok &= np.linalg.norm(aligned - q1[idx], axis=1) < c.refine_max_px
             moved = np.full_like(aligned, -1e9)
-            moved[ok] = raw_pixels(self.camera, aligned[ok])
+            moved[ok] = raw_pixels(self._lens, aligned[ok])
             ok &= self.camera.in_view(moved, margin=c.border_margin_px)
             p1[idx[ok]] = moved[ok]
             keep[idx[~ok]] = False
         return keep, p1
+
+    def _window_box(self, points: np.ndarray) -> tuple[int, int, int, int]:
+        """The part of the view the re-alignment's LK windows at ``points`` (N, 2) can
+        read, as x0, y0, x1, y1 (pixels, clipped to the image).
+
+        LK reads the template only in the window around each starting point (plus one
+        pixel for the bilinear interpolation, one for the Scharr derivative) and the
+        current image around its estimate, which is dropped once it is more than
+        ``refine_max_px`` from its start: a full-frame warp is mostly wasted work."""
+        c = self.config
+        assert c.refine_max_px is not None
+        reach = c.lk_window // 2 + 3 + int(np.ceil(c.refine_max_px))
+        width, height = self.camera.width, self.camera.height
+        finite = points[np.all(np.isfinite(points), axis=1)]
+        if not len(finite):
+            return 0, 0, width, height
+        low = np.floor(finite.min(axis=0)) - reach
+        high = np.ceil(finite.max(axis=0)) + reach + 1
+        x0, y0 = (int(v) for v in np.clip(low, 0, (width - 1, height - 1)))
+        x1, y1 = (int(v) for v in np.clip(high, (x0 + 1, y0 + 1), (width, height)))
+        return x0, y0, x1, y1
+
+    @staticmethod
+    def _warp_box(image: np.ndarray, G: np.ndarray, box: tuple[int, int, int, int]) -> np.ndarray:
+        """``image`` warped by G into the current view, only inside ``box`` (x0, y0, x1, y1)."""
+        x0, y0, x1, y1 = box
+        shift = np.array([[1.0, 0.0, -x0], [0.0, 1.0, -y0], [0.0, 0.0, 1.0]])
+        # Replicated borders: a black frame would be an edge that pulls the LK windows.
+        return cv2.warpPerspective(
+            image,
+            shift @ G,
+            (x1 - x0, y1 - y0),
+            flags=cv2.INTER_LINEAR,
+            borderMode=cv2.BORDER_REPLICATE,
+        )
 
     def _replenish(
         self, gray: np.ndarray, pinhole: np.ndarray, found: tuple[np.ndarray, np.ndarray] | None
@@ -420,7 +464,7 @@ class FeatureTracker:
         self._points = np.vstack((self._points, corners))
         self._ids = np.concatenate((self._ids, new_ids))
         self._birth = np.concatenate((self._birth, np.full(len(corners), self._index)))
-        self._birth_uv = np.vstack((self._birth_uv, pinhole_pixels(self.camera, corners)))
+        self._birth_uv = np.vstack((self._birth_uv, pinhole_pixels(self._lens, corners)))
         self._birth_images[self._index] = pinhole
         self._warps[self._index] = np.eye(3)
 
