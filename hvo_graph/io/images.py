@@ -15,7 +15,9 @@ BGRA, 8 or 16 bits) into what the tracker reads (:mod:`hvo_graph.frontend.tracki
 from __future__ import annotations
 
 import re
+from collections import deque
 from collections.abc import Iterator
+from concurrent.futures import Future, ThreadPoolExecutor
 from pathlib import Path
 
 import cv2
@@ -31,6 +33,8 @@ VIDEO_EXTENSIONS = (
     ".mp4", ".m4v", ".mov", ".avi", ".mkv", ".webm", ".mpg", ".mpeg", ".ts", ".mts",
     ".m2ts", ".wmv", ".flv", ".ogv", ".3gp", ".mjpeg", ".mjpg", ".y4m", ".h264", ".h265",
 )  # fmt: skip
+#: Images of a folder read ahead of the one being worked on (a worker thread decodes them).
+PREFETCH_FRAMES = 2
 #: Optional timestamp file inside an image directory: one time (seconds) per image.
 TIMES_FILE = "times.txt"
 
@@ -103,15 +107,29 @@ class ImageSequence:
 class _DirectoryImages(ImageSequence):
     def __init__(self, files: list[Path]):
         self.files = files
-        first = _read_image(files[0])
-        super().__init__([str(f) for f in files], first.shape[1], first.shape[0])
+        # Read now for the size, and kept: the first pass would decode it again.
+        self._first: np.ndarray | None = _read_image(files[0])
+        super().__init__([str(f) for f in files], self._first.shape[1], self._first.shape[0])
 
     def __getitem__(self, k: int) -> np.ndarray:
         return self._check_size(_read_image(self.files[k]), self.names[k])
 
     def __iter__(self) -> Iterator[np.ndarray]:
-        for k in range(len(self.files)):
-            yield self[k]
+        # The next files are read and decoded by a worker thread (OpenCV's decoders
+        # release the GIL) while the caller works on this one; a file's error is raised
+        # when the caller reaches it, as a plain loop would.
+        with ThreadPoolExecutor(max_workers=1, thread_name_prefix="hvo-images") as pool:
+            ahead: deque[Future[np.ndarray]] = deque()
+            for k in range(len(self.files)):
+                while len(ahead) < PREFETCH_FRAMES and k + len(ahead) < len(self.files):
+                    ahead.append(pool.submit(self._read, k + len(ahead)))
+                yield ahead.popleft().result()
+
+    def _read(self, k: int) -> np.ndarray:
+        if k == 0 and self._first is not None:
+            image, self._first = self._first, None
+            return image
+        return self[k]
 
 
 class _VideoFrames(ImageSequence):
