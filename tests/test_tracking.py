@@ -407,6 +407,26 @@ def test_unreadable_images_are_named(tmp_path, images):
         load_image_sequence(tmp_path, fps=10.0)
 
 
+def test_a_bad_file_read_ahead_fails_only_when_its_frame_comes(tmp_path, images):
+    # Files are decoded ahead of the caller: the frames before a bad one still arrive, in
+    # order, and the error names the bad file when the caller reaches it.
+    write_images(tmp_path, images[:6])
+    (tmp_path / "frame_0003.png").write_bytes(b"definitely not a png")
+    frames, _ = load_image_sequence(tmp_path, fps=10.0)
+    seen = []
+    with pytest.raises(InputError, match=r"frame_0003\.png: cannot read the image"):
+        for frame in frames:
+            seen.append(frame)
+    assert len(seen) == 3
+    assert all(np.array_equal(a, b) for a, b in zip(seen, images[:3], strict=True))
+    # A second pass reads the same frames again (the first one is not kept twice).
+    again = []
+    with pytest.raises(InputError, match=r"frame_0003\.png"):
+        for frame in frames:
+            again.append(frame)
+    assert all(np.array_equal(a, b) for a, b in zip(again, images[:3], strict=True))
+
+
 @pytest.mark.parametrize(
     ("content", "message"),
     [
