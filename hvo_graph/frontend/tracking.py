@@ -48,6 +48,7 @@ import cv2
 import numpy as np
 
 from hvo_graph.errors import InputError
+from hvo_graph.frontend._klt import align_to_first_sight, back_levels
 from hvo_graph.frontend.reidentify import LostTracks, find_again
 from hvo_graph.frontend.target import TargetSpec, board_margin, detect_target
 from hvo_graph.frontend.tracker_config import WIDE_BASELINE_FRACTION, TrackerConfig
@@ -289,7 +290,8 @@ class FeatureTracker:
         keep = ok & self.camera.in_view(p1, margin=c.border_margin_px)
         idx = np.flatnonzero(keep)
         if len(idx):
-            back, ok_back = self._lk(current, previous, p1[idx])
+            levels = back_levels(p0[idx], p1[idx], c.lk_window, c.lk_levels)
+            back, ok_back = self._lk(current, previous, p1[idx], levels=levels)
             fb_error = np.linalg.norm(back - p0[idx], axis=1)
             keep[idx] = ok_back & (fb_error < c.fb_threshold_px)
         return self._plane_check(p0, p1, keep), p1.astype(np.float32)
@@ -367,61 +369,15 @@ class FeatureTracker:
             if G is None:
                 continue  # nothing to warp with: keep the frame-to-frame result
             self._warps[b] = G
-            predicted = cv2.perspectiveTransform(first.reshape(-1, 1, 2), G).reshape(-1, 2)
-            (x0, y0, x1, y1) = self._window_box(np.vstack((predicted, q1[idx])))
-            warped = self._warp_box(self._birth_images[int(b)], G, (x0, y0, x1, y1))
-            corner = np.array([x0, y0], dtype=np.float64)
-            # No pyramid: the frame-to-frame result is within a fraction of a pixel.
-            aligned, ok = self._lk(
-                warped,
-                current[y0:y1, x0:x1],
-                predicted - corner,
-                guess=q1[idx] - corner,
-                levels=0,
+            aligned, ok = align_to_first_sight(
+                self._birth_images[int(b)], current, G, first, q1[idx], c, self._lk
             )
-            aligned += corner
-            ok &= np.linalg.norm(aligned - q1[idx], axis=1) < c.refine_max_px
             moved = np.full_like(aligned, -1e9)
             moved[ok] = raw_pixels(self._lens, aligned[ok])
             ok &= self.camera.in_view(moved, margin=c.border_margin_px)
             p1[idx[ok]] = moved[ok]
             keep[idx[~ok]] = False
         return keep, p1
-
-    def _window_box(self, points: np.ndarray) -> tuple[int, int, int, int]:
-        """The part of the view the re-alignment's LK windows at ``points`` (N, 2) can
-        read, as x0, y0, x1, y1 (pixels, clipped to the image).
-
-        LK reads the template only in the window around each starting point (plus one
-        pixel for the bilinear interpolation, one for the Scharr derivative) and the
-        current image around its estimate, which is dropped once it is more than
-        ``refine_max_px`` from its start: a full-frame warp is mostly wasted work."""
-        c = self.config
-        assert c.refine_max_px is not None
-        reach = c.lk_window // 2 + 3 + int(np.ceil(c.refine_max_px))
-        width, height = self.camera.width, self.camera.height
-        finite = points[np.all(np.isfinite(points), axis=1)]
-        if not len(finite):
-            return 0, 0, width, height
-        low = np.floor(finite.min(axis=0)) - reach
-        high = np.ceil(finite.max(axis=0)) + reach + 1
-        x0, y0 = (int(v) for v in np.clip(low, 0, (width - 1, height - 1)))
-        x1, y1 = (int(v) for v in np.clip(high, (x0 + 1, y0 + 1), (width, height)))
-        return x0, y0, x1, y1
-
-    @staticmethod
-    def _warp_box(image: np.ndarray, G: np.ndarray, box: tuple[int, int, int, int]) -> np.ndarray:
-        """``image`` warped by G into the current view, only inside ``box`` (x0, y0, x1, y1)."""
-        x0, y0, x1, y1 = box
-        shift = np.array([[1.0, 0.0, -x0], [0.0, 1.0, -y0], [0.0, 0.0, 1.0]])
-        # Replicated borders: a black frame would be an edge that pulls the LK windows.
-        return cv2.warpPerspective(
-            image,
-            shift @ G,
-            (x1 - x0, y1 - y0),
-            flags=cv2.INTER_LINEAR,
-            borderMode=cv2.BORDER_REPLICATE,
-        )
 
     def _replenish(
         self, gray: np.ndarray, pinhole: np.ndarray, found: tuple[np.ndarray, np.ndarray] | None
