@@ -31,10 +31,12 @@ def back_levels(p0: np.ndarray, p1: np.ndarray, window: int, levels: int) -> int
     """Pyramid levels of the backward search: as many as the forward displacement needs.
 
     A pyramid lets LK recover a displacement larger than its window; going back, the
-    displacement is known (the forward one, at most d pixels), so the levels whose only
-    use would be a larger one are skipped: the top level used sees d / 2^L within a
-    quarter of the window. The search still starts at p1 with no motion, so the check
-    stays independent of the forward result; with fast motion it is the full pyramid.
+    displacement is known (the forward one, at most d pixels over the frame's points),
+    so the levels whose only use would be a larger one are skipped: the top level used
+    sees d / 2^L within an eighth of the window (on rendered textures, one level
+    recovers about twice that). The search still starts at p1 with no motion, so the
+    check stays independent of the forward result; with fast motion it is the full
+    pyramid.
 
     Args:
         p0, p1: (N, 2) the points and where the forward search found them, pixels.
@@ -44,7 +46,7 @@ def back_levels(p0: np.ndarray, p1: np.ndarray, window: int, levels: int) -> int
     if not len(p0):
         return levels
     d = float(np.max(np.linalg.norm(p1 - p0, axis=1)))
-    capture = window / 4.0
+    capture = window / 8.0
     if not np.isfinite(d):
         return levels
     if d <= capture:
