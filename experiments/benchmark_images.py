@@ -16,10 +16,15 @@ user's image folder is. On those files:
 - **end to end**: ``hvo-graph estimate --images DIR --fps 30`` in a fresh process,
   for the measurements alone and for the default smoother: reading, tracking, the
   front end, the estimator and every output file.
+
+Each is timed in wall and CPU seconds beside the bare loop. experiments/benchmark.py
+runs it (``--image-frames``); alone, ``python experiments/benchmark_images.py
+[--frames N] [--out FILE]`` prints (or writes) the table.
 """
 
 from __future__ import annotations
 
+import argparse
 import os
 import subprocess
 import sys
@@ -33,7 +38,7 @@ import cv2
 from hvo_graph.frontend.tracker_config import TrackerConfig
 from hvo_graph.frontend.tracking import tracks_from_images
 from hvo_graph.io.config import load_camera
-from hvo_graph.report.tables import markdown_table
+from hvo_graph.report.tables import markdown_table, write_text_atomic
 from hvo_graph.sim.render import render_plane_images
 from hvo_graph.sim.scenario import paper_scenario, simulate, write_scenario
 
@@ -151,8 +156,9 @@ def image_stages(frames: int, seed: int) -> list[ImageStage]:
 
 
 def images_section(stages: list[ImageStage]) -> str:
-    """Markdown: each way through the images beside the bare OpenCV loop."""
-    bare = stages[0].wall_s
+    """Markdown: each way through the images beside the bare OpenCV loop (wall time, and
+    CPU time: on a shared machine the steadier of the two)."""
+    bare, bare_cpu = stages[0].wall_s, stages[0].cpu_s
     rows = [
         [
             s.stage,
@@ -161,11 +167,35 @@ def images_section(stages: list[ImageStage]) -> str:
             f"{s.cpu_s:.2f}" if s.stage.startswith(("bare", "tracking")) else f"{s.cpu_s:.1f}",
             f"{s.frames / s.wall_s:,.0f}",
             f"{s.wall_s / bare:.2f}",
+            f"{s.cpu_s / bare_cpu:.2f}",
         ]
         for s in stages
     ]
     header = ["stage", "frames", "wall [s]", "CPU [s]", "frames/s", "time / bare OpenCV"]
-    return markdown_table(header, rows)
+    return markdown_table([*header, "CPU / bare OpenCV"], rows)
 
 
-__all__ = ["ImageStage", "bare_opencv", "image_stages", "images_section", "write_image_folder"]
+def main(argv: list[str] | None = None) -> int:
+    """The images section alone: ``python experiments/benchmark_images.py [--frames N]``
+    prints its table (``--out FILE`` writes it there instead)."""
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--frames", type=int, default=450, help="rendered frames (default 450)")
+    parser.add_argument("--seed", type=int, default=0, help="pixel-noise seed")
+    parser.add_argument("--out", type=Path, help="markdown file to write (default: print)")
+    args = parser.parse_args(argv)
+    if args.frames < 2:
+        parser.error(f"--frames: expected an integer >= 2, got {args.frames}")
+    text = images_section(image_stages(args.frames, args.seed)) + "\n"
+    if args.out is None:
+        print(text, end="")
+    else:
+        write_text_atomic(args.out, text)
+    return 0
+
+
+__all__ = [
+    "ImageStage", "bare_opencv", "image_stages", "images_section", "main", "write_image_folder",
+]  # fmt: skip
+
+if __name__ == "__main__":
+    sys.exit(main())
