@@ -12,8 +12,9 @@ import cv2
 import numpy as np
 import pytest
 
+import hvo_graph.frontend._klt as klt
 import hvo_graph.frontend.tracking as tracking
-from hvo_graph.frontend._klt import align_to_first_sight, back_levels
+from hvo_graph.frontend._klt import align_to_first_sight, back_levels, forward_backward
 from hvo_graph.frontend.tracker_config import TrackerConfig
 from hvo_graph.sim.render import make_texture
 
@@ -112,16 +113,60 @@ def test_the_shortened_backward_search_keeps_the_same_tracks(monkeypatch):
 
     images = render_plane_images(CAMERA, PLANE, POSES[:30], noise_sigma=1.0, seed=3)
     chosen = []
-    real = tracking.back_levels
+    real = klt.back_levels
 
     def spy(*args):
         chosen.append(real(*args))
         return chosen[-1]
 
-    monkeypatch.setattr(tracking, "back_levels", spy)
+    monkeypatch.setattr(klt, "back_levels", spy)
     short = tracking.track_images(images, TIMES[:30], CAMERA)
-    monkeypatch.setattr(tracking, "back_levels", lambda p0, p1, window, levels: levels)
+    monkeypatch.setattr(klt, "back_levels", lambda p0, p1, window, levels: levels)
     full = tracking.track_images(images, TIMES[:30], CAMERA)
     assert min(chosen) < CONFIG.lk_levels  # the shortcut was taken
     for a, b in zip(short, full, strict=True):
         assert np.array_equal(a.ids, b.ids) and np.array_equal(a.uv, b.uv)
+
+
+@pytest.mark.parametrize("error", [0.0, 15.0])
+def test_a_wrong_prediction_costs_no_track(texture, error):
+    # The second image is the first moved by (6, -3) px. Started at the truth (error 0)
+    # without a pyramid, or 15 px off, the forward-backward search keeps what the plain
+    # search keeps, where it keeps it.
+    d = np.array([6.0, -3.0])
+    moved = cv2.warpAffine(
+        texture, np.array([[1.0, 0.0, d[0]], [0.0, 1.0, d[1]]]), texture.shape[::-1],
+        flags=cv2.INTER_CUBIC, borderMode=cv2.BORDER_REFLECT,
+    )  # fmt: skip
+    p0 = _corners(texture, margin=30)
+    in_view = lambda uv: np.all((uv > 8) & (uv < np.array([311.5, 231.5])), axis=1)  # noqa: E731
+    plain, keep_plain = forward_backward(_lk, texture, moved, p0, CONFIG, in_view)
+    guess = p0 + (d + np.array([error, 0.0])).astype(np.float32)
+    p1, keep = forward_backward(_lk, texture, moved, p0, CONFIG, in_view, guess, 0)
+    assert np.array_equal(keep, keep_plain) and keep.mean() > 0.9
+    assert np.abs(p1[keep] - plain[keep]).max() < 0.02
+    assert np.abs(p1[keep] - (p0[keep] + d)).max() < 0.05
+
+
+def test_the_predicted_start_keeps_the_same_tracks(monkeypatch):
+    # The sequence of tests/test_tracking.py: the tracker starting each forward search at
+    # the last step's plane motion and the one starting with no motion keep the same tracks
+    # within a hundredth of a pixel.
+    from hvo_graph.sim.render import render_plane_images
+    from tests.test_tracking import CAMERA, PLANE, POSES, TIMES
+
+    images = render_plane_images(CAMERA, PLANE, POSES[:30], noise_sigma=1.0, seed=3)
+    levels = []
+    real = tracking.predict
+
+    def spy(*args):
+        levels.append(real(*args)[1])
+        return real(*args)
+
+    monkeypatch.setattr(tracking, "predict", spy)
+    predicted = tracking.track_images(images, TIMES[:30], CAMERA)
+    monkeypatch.setattr(tracking, "predict", lambda *args: (None, None))
+    plain = tracking.track_images(images, TIMES[:30], CAMERA)
+    assert min(v for v in levels if v is not None) < CONFIG.lk_levels  # shortened
+    for a, b in zip(predicted, plain, strict=True):
+        assert np.array_equal(a.ids, b.ids) and np.abs(a.uv - b.uv).max() < 0.01

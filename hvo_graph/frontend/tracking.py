@@ -42,13 +42,20 @@ replenished points serve poses once a keyframe sees them, velocities (H_c) at on
 from __future__ import annotations
 
 from collections.abc import Iterable, Sequence
+from functools import partial
 from pathlib import Path
 
 import cv2
 import numpy as np
 
 from hvo_graph.errors import InputError
-from hvo_graph.frontend._klt import align_to_first_sight, back_levels
+from hvo_graph.frontend._klt import (
+    align_to_first_sight,
+    forward_backward,
+    plane_check,
+    predict,
+    prediction_miss,
+)
 from hvo_graph.frontend.reidentify import LostTracks, find_again
 from hvo_graph.frontend.target import TargetSpec, board_margin, detect_target
 from hvo_graph.frontend.tracker_config import WIDE_BASELINE_FRACTION, TrackerConfig
@@ -119,6 +126,9 @@ class FeatureTracker:
         # last image (pinhole pixels).
         self._warps: dict[int, np.ndarray] = {}
         self._next_id = 0
+        # The last frame-to-frame plane homography (pinhole pixels) of plain KLT and the
+        # largest distance between a kept track and where it predicted it, or None.
+        self._motion: tuple[np.ndarray | None, float] = (None, np.nan)
         c = self.config
         self._criteria = (
             cv2.TERM_CRITERIA_COUNT | cv2.TERM_CRITERIA_EPS,
@@ -145,8 +155,9 @@ class FeatureTracker:
             raise InputError(f"{name}: time {t} does not increase (previous {self._t})")
         found = detect_target(gray, self.target) if self.target is not None else None
         pinhole = pinhole_image(self._lens, gray)
+        motion, self._motion = self._motion, (None, np.nan)  # set again by plain KLT
         if self._image is not None and len(self._points):
-            keep, points = self._follow(gray, pinhole, self._points, found)
+            keep, points = self._follow(gray, pinhole, self._points, found, motion)
             if self.config.refine_max_px is not None:
                 keep, points = self._realign(pinhole, keep, self._points, points)
             self._remember(keep)
@@ -247,6 +258,7 @@ class FeatureTracker:
         pinhole: np.ndarray,
         p0: np.ndarray,
         found: tuple[np.ndarray, np.ndarray] | None,
+        motion: tuple[np.ndarray | None, float],
     ) -> tuple[np.ndarray, np.ndarray]:
         """The tracks p0 of the last image in ``current`` (``pinhole``: undistorted):
         guided by the target's homography when the target is seen in both images, else
@@ -261,7 +273,7 @@ class FeatureTracker:
             H0 = target_homography(self._found, found, self.camera)
             if H0 is not None:
                 return self._track_guided(self._pinhole, pinhole, p0, H0)
-        keep, p1 = self._track(self._image, current, p0)
+        keep, p1 = self._track(self._image, current, p0, motion)
         if not self.config.wide_baseline:
             return keep, p1
         if np.count_nonzero(keep) >= WIDE_BASELINE_FRACTION * len(p0):
@@ -272,29 +284,30 @@ class FeatureTracker:
             return keep, p1
         keep_g, p1_g = self._track_guided(self._pinhole, pinhole, p0, H0)
         if np.count_nonzero(keep_g) > np.count_nonzero(keep):
+            self._motion = (None, np.nan)  # not plain KLT's step
             return keep_g, p1_g
         return keep, p1
 
     def _track(
-        self, previous: np.ndarray, current: np.ndarray, p0: np.ndarray
+        self,
+        previous: np.ndarray,
+        current: np.ndarray,
+        p0: np.ndarray,
+        motion: tuple[np.ndarray | None, float],
     ) -> tuple[np.ndarray, np.ndarray]:
-        """Frame-to-frame KLT with the forward-backward, border and RANSAC checks.
+        """Frame-to-frame KLT with the forward-backward, border and RANSAC checks; the
+        forward search starts where the last frame's plane motion moves each point.
 
         Returns:
             (N,) keep mask and (N, 2) positions in ``current`` of the points p0.
         """
-        c = self.config
-        p1, ok = self._lk(previous, current, p0)
-        # Back only what went forward: each point is tracked on its own, so the others'
-        # results are the same, and a lost track costs no second search.
-        keep = ok & self.camera.in_view(p1, margin=c.border_margin_px)
-        idx = np.flatnonzero(keep)
-        if len(idx):
-            levels = back_levels(p0[idx], p1[idx], c.lk_window, c.lk_levels)
-            back, ok_back = self._lk(current, previous, p1[idx], levels=levels)
-            fb_error = np.linalg.norm(back - p0[idx], axis=1)
-            keep[idx] = ok_back & (fb_error < c.fb_threshold_px)
-        return self._plane_check(p0, p1, keep), p1.astype(np.float32)
+        c, to_pinhole = self.config, partial(pinhole_pixels, self._lens)
+        guess, levels = predict(p0, motion, self._lens, c)
+        in_view = partial(self.camera.in_view, margin=c.border_margin_px)
+        p1, keep = forward_backward(self._lk, previous, current, p0, c, in_view, guess, levels)
+        H = plane_check(p0, p1, keep, c.ransac_threshold_px, to_pinhole)
+        self._motion = (None, np.nan) if H is None else (H, prediction_miss(p1, guess, keep))
+        return keep, p1.astype(np.float32)
 
     def _track_guided(
         self, previous: np.ndarray, current: np.ndarray, p0: np.ndarray, H0: np.ndarray
@@ -317,22 +330,8 @@ class FeatureTracker:
         p1 = np.full_like(q1, -1e9)
         p1[ok] = raw_pixels(self._lens, q1[ok])
         keep = ok & self.camera.in_view(p1, margin=c.border_margin_px)
-        return self._plane_check(p0, p1, keep), p1.astype(np.float32)
-
-    def _plane_check(self, p0: np.ndarray, p1: np.ndarray, keep: np.ndarray) -> np.ndarray:
-        """Drop the kept tracks that do not move with the dominant plane (RANSAC homography
-        in pinhole pixels, where plane points map by one)."""
-        c = self.config
-        if c.ransac_threshold_px is not None and np.count_nonzero(keep) >= 4:
-            idx = np.flatnonzero(keep)
-            src = pinhole_pixels(self._lens, p0[idx])
-            dst = pinhole_pixels(self._lens, p1[idx])
-            H, inliers = cv2.findHomography(
-                src, dst, cv2.RANSAC, c.ransac_threshold_px, maxIters=2000, confidence=0.999
-            )
-            if H is not None:  # None: degenerate configuration, nothing to judge against
-                keep[idx[inliers.ravel() == 0]] = False
-        return keep
+        plane_check(p0, p1, keep, c.ransac_threshold_px, partial(pinhole_pixels, self._lens))
+        return keep, p1.astype(np.float32)
 
     def _realign(
         self, current: np.ndarray, keep: np.ndarray, p0: np.ndarray, p1: np.ndarray
