@@ -8,7 +8,8 @@ The paper's future work (NOTES section 7): real images, with OpenCV's KLT tracke
 - **detection**: Shi-Tomasi corners (``cv2.goodFeaturesToTrack``), away from
   the image border and from existing tracks (with a target: on the board only);
 - **tracking**: pyramidal Lucas-Kanade (``cv2.calcOpticalFlowPyrLK``) from
-  frame k-1 to frame k with a forward-backward check (``fb_threshold_px``);
+  frame k-1 to frame k with a forward-backward check (``fb_threshold_px``),
+  started where the last step's plane motion moves each point;
 - **wide baseline** (``wide_baseline``, or a target seen in both frames): a
   coarse plane homography guides the alignment when KLT cannot follow
   (:mod:`hvo_graph.frontend.wide_baseline`);
@@ -126,8 +127,8 @@ class FeatureTracker:
         # last image (pinhole pixels).
         self._warps: dict[int, np.ndarray] = {}
         self._next_id = 0
-        # The last frame-to-frame plane homography (pinhole pixels) of plain KLT and the
-        # largest distance between a kept track and where it predicted it, or None.
+        # The last frame-to-frame plane homography of plain KLT (pinhole pixels) and the
+        # largest distance between a kept track and its prediction; (None, nan): none.
         self._motion: tuple[np.ndarray | None, float] = (None, np.nan)
         c = self.config
         self._criteria = (
