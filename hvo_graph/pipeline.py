@@ -35,6 +35,7 @@ from hvo_graph.frontend import (
 )
 from hvo_graph.frontend.health import front_end_health
 from hvo_graph.geometry.camera import CameraModel
+from hvo_graph.measurement_table import frame_columns
 from hvo_graph.types import FrameMeasurement, FrameObservations, Plane, Trajectory
 
 #: Every ``--method`` (:data:`hvo_graph.estimators.registry.COMMAND_METHODS`); the
@@ -133,7 +134,8 @@ class EstimateRun:
         method: the method.
         trajectory: the final (or, with ``online``, causal) estimate.
         estimator: the estimator after the run (fitted noise, counts).
-        frames: the front end's measurements.
+        frames: the front end's measurements (a
+            :class:`~hvo_graph.measurement_table.MeasurementTable` from :func:`run_estimate`).
         front_end: the front end's settings in force.
         options: the estimator options given.
         excluded_tracks: track ids the front end left out as off the plane.
@@ -142,7 +144,7 @@ class EstimateRun:
     method: str
     trajectory: Trajectory
     estimator: Estimator
-    frames: list[FrameMeasurement]
+    frames: Sequence[FrameMeasurement]
     front_end: FrontEndConfig
     options: dict[str, object]
     excluded_tracks: frozenset[int] = frozenset()
@@ -166,13 +168,14 @@ class EstimateRun:
             settings["kalman_process_noise"] = [float(q) for q in est.process_noise]
             if settings.get("acceleration_sigma") == "auto":  # the filter's own Q_k
                 settings.pop("acceleration_sigma")
+        columns = frame_columns(self.frames)
         counts = {
             "frames": len(self.frames),
-            "frames_with_pose": sum(f.pose is not None for f in self.frames),
-            "frames_with_velocity": sum(f.velocity is not None for f in self.frames),
-            "points": sum(f.num_points for f in self.frames),
-            "rejected_points": sum(f.num_rejected for f in self.frames),
-            "frames_with_rejections": sum(f.num_rejected > 0 for f in self.frames),
+            "frames_with_pose": int(columns.has_pose.sum()),
+            "frames_with_velocity": int(columns.has_velocity.sum()),
+            "points": int(columns.num_points.sum()),
+            "rejected_points": int(columns.num_rejected.sum()),
+            "frames_with_rejections": int((columns.num_rejected > 0).sum()),
             "excluded_tracks": sorted(self.excluded_tracks),
         }
         if hasattr(est, "velocity_factor_counts"):
@@ -209,7 +212,7 @@ def run_estimate(
     estimator = make_estimator(method, **options)
     config = front_end_config(scene, method=method, **front)
     front_end = MeasurementFrontEnd(scene.camera, scene.plane, config)
-    frames = front_end.process_all(list(observations))
+    frames = front_end.process_table(observations)
     smoothed = estimator.run(frames)
     trajectory = estimator.online_trajectory() if online else smoothed
     if not options.get("covariance") and trajectory.covariances is not None:

@@ -232,7 +232,7 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
 def run(args: argparse.Namespace) -> int:
     from hvo_graph.io._common import staged_output
     from hvo_graph.io.sequences import open_recording
-    from hvo_graph.io.tracks import read_tracks, write_tracks
+    from hvo_graph.io.tracks import read_track_table, write_tracks
     from hvo_graph.io.trajectory import ESTIMATE_FILES, write_estimate_dir, write_run_record
     from hvo_graph.pipeline import FRONT_END_OPTIONS, run_estimate
     from hvo_graph.report.tables import software_versions
@@ -261,7 +261,7 @@ def run(args: argparse.Namespace) -> int:
         if args.plane == "auto":
             raise InputError("--plane auto: needs --images (the first image shows the target)")
         scene = scene_from_arguments(args, None)
-        observations = read_tracks(args.tracks)
+        observations = read_track_table(args.tracks)  # frames made one at a time
     options = _estimate_options(args)
     check_applicable(
         args.method,

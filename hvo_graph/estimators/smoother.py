@@ -256,7 +256,7 @@ class FactorGraphSmoother(Estimator):
 
     def run(self, frames: Iterable[FrameMeasurement]) -> Trajectory:
         """Fuse a whole sequence; "auto" process noise is fitted on all of it first."""
-        frames = list(frames)
+        frames = frames if isinstance(frames, Sequence) else list(frames)  # a table: as is
         if not self._indices:
             self.process_noise.fit_all(frames)
             self.acceleration_sigma = self.process_noise.sigma

@@ -18,7 +18,7 @@ succeeds and starts small again after a cut, so a cut wastes little work.
 
 from __future__ import annotations
 
-from collections.abc import Sequence
+from collections.abc import Iterable, MutableSequence, Sequence
 from typing import TYPE_CHECKING
 
 import numpy as np
@@ -49,18 +49,22 @@ MAX_STRETCH = 256
 
 def measure_frames(
     front: MeasurementFrontEnd,
-    observations: Sequence[FrameObservations],
+    observations: Iterable[FrameObservations],
     robust_min: int,
     huber: float,
-) -> list[FrameMeasurement]:
+    out: MutableSequence[FrameMeasurement] | None = None,
+) -> MutableSequence[FrameMeasurement]:
     """The records ``[front.process(o) for o in observations]`` would give, and the same
     state of ``front`` afterwards; plain stretches measured at once.
 
     Args:
         robust_min: fewest shared points for RANSAC and the gates (``ROBUST_MIN_POINTS``).
         huber: the refinement's Huber threshold (``HUBER``).
+        out: where the records go (``append`` / ``extend``), returned; default a new list.
     """
-    out: list[FrameMeasurement] = []
+    out = [] if out is None else out
+    if not isinstance(observations, Sequence):  # a list, a lazy track table: not copied
+        observations = list(observations)
     i, n, size = 0, len(observations), FIRST_STRETCH
     while i < n:
         stop = min(n, i + size)

@@ -18,6 +18,7 @@ from itertools import pairwise
 
 import numpy as np
 
+from hvo_graph.measurement_table import frame_columns
 from hvo_graph.types import FrameMeasurement
 
 #: Warn when more than this fraction of the frames had no pose measurement.
@@ -94,29 +95,30 @@ def front_end_health(frames: Sequence[FrameMeasurement]) -> FrontEndHealth:
     Returns:
         The counts of :class:`FrontEndHealth`.
     """
-    has_pose = [f.pose is not None for f in frames]
+    columns = frame_columns(frames)  # a MeasurementTable's without making its records
+    has_pose, index = columns.has_pose.tolist(), columns.index.tolist()
     gaps, run_start = [], 0
     for k, ok in enumerate([*has_pose, True]):
         if not ok:
             continue
         if k > run_start:
-            gaps.append((frames[run_start].index, frames[k - 1].index, k - run_start))
+            gaps.append((index[run_start], index[k - 1], k - run_start))
         run_start = k + 1
     longest = max(gaps, key=lambda g: g[2], default=(None, None, 0))
-    tracks = np.array([f.num_points for f in frames], dtype=int)
-    references = [f.pose.reference for f in frames if f.pose is not None]
+    tracks = columns.num_points.astype(int)
+    references = columns.references[columns.has_pose].tolist()
     changes = [b for a, b in pairwise(references) if b != a]
-    without_pose = {f.index for f, ok in zip(frames, has_pose, strict=True) if not ok}
+    without_pose = {i for i, ok in zip(index, has_pose, strict=True) if not ok}
     return FrontEndHealth(
         frames=len(frames),
         frames_with_pose=int(sum(has_pose)),
-        frames_with_velocity=sum(f.velocity is not None for f in frames),
+        frames_with_velocity=int(columns.has_velocity.sum()),
         longest_gap=longest[2],
         longest_gap_start=longest[0],
         tracks_min=int(tracks.min()) if len(tracks) else 0,
         tracks_median=float(np.median(tracks)) if len(tracks) else 0.0,
         tracks_max=int(tracks.max()) if len(tracks) else 0,
-        rejected_points=sum(f.num_rejected for f in frames),
+        rejected_points=int(columns.num_rejected.sum()),
         reference_changes=len(changes),
         reacquisitions=sum(r in without_pose for r in changes),
         gaps=tuple((first, last) for first, last, _ in gaps),

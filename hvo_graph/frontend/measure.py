@@ -48,6 +48,7 @@ from hvo_graph.geometry.continuous import motion_after_twist
 from hvo_graph.geometry.decomposition import decompose_homography, physically_valid_solutions
 from hvo_graph.geometry.discrete import estimate_homography, ippe_motion
 from hvo_graph.geometry.transfer import keyframe_plane_jacobian
+from hvo_graph.measurement_table import MeasurementTable
 from hvo_graph.types import (
     FrameMeasurement,
     FrameObservations,
@@ -248,7 +249,11 @@ class MeasurementFrontEnd:
     def process_all(self, observations: Iterable[FrameObservations]) -> list[FrameMeasurement]:
         """:meth:`process` of every frame in order; stretches of frames that see the same
         tracks are measured at once (the same records to rounding, the same state after)."""
-        return measure_frames(self, list(observations), ROBUST_MIN_POINTS, HUBER)
+        return list(measure_frames(self, observations, ROBUST_MIN_POINTS, HUBER))
+
+    def process_table(self, observations: Iterable[FrameObservations]) -> MeasurementTable:
+        """:meth:`process_all` into a :class:`~hvo_graph.measurement_table.MeasurementTable`."""
+        return measure_frames(self, observations, ROBUST_MIN_POINTS, HUBER, MeasurementTable())  # type: ignore[arg-type,return-value]
 
     @property
     def excluded_tracks(self) -> frozenset[int]:

@@ -18,6 +18,7 @@ first offending line (1-based).
 from __future__ import annotations
 
 from collections.abc import Sequence
+from typing import overload
 
 import numpy as np
 
@@ -47,6 +48,53 @@ def read_tracks(path: PathLike) -> list[FrameObservations]:
     Returns:
         One :class:`FrameObservations` per distinct frame number, in file order;
         ``ids`` (N,) int64, ``uv`` (N, 2) float64 in file row order.
+    Raises:
+        InputError, OSError: as :func:`read_track_table`.
+    """
+    return list(read_track_table(path))
+
+
+class TrackTable(Sequence[FrameObservations]):
+    """The frames of a tracks CSV as a read-only sequence of :class:`FrameObservations`,
+    kept as the file's columns (ids, uv) and made one frame at a time on access (a
+    fraction of the memory of the list :func:`read_tracks` returns); ``table[k]`` is
+    equal to ``read_tracks(path)[k]``.
+
+    Args:
+        index: (F,) frame numbers; t: (F,) times; starts: (F + 1,) first row of each
+            frame (and the row count); ids: (R,) int64; uv: (R, 2) float64.
+    """
+
+    def __init__(
+        self, index: np.ndarray, t: np.ndarray, starts: np.ndarray, ids: np.ndarray, uv: np.ndarray
+    ) -> None:
+        self._index, self._t, self._starts = index.tolist(), t.tolist(), starts.tolist()
+        self._ids, self._uv = ids, uv
+
+    def __len__(self) -> int:
+        return len(self._index)
+
+    @overload
+    def __getitem__(self, k: int) -> FrameObservations: ...
+
+    @overload
+    def __getitem__(self, k: slice) -> list[FrameObservations]: ...
+
+    def __getitem__(self, k: int | slice) -> FrameObservations | list[FrameObservations]:
+        if isinstance(k, slice):
+            return [self[i] for i in range(*k.indices(len(self)))]
+        i = k + len(self) if k < 0 else k
+        if not 0 <= i < len(self):
+            raise IndexError(f"frame {k} out of range ({len(self)} frames)")
+        s, e = self._starts[i], self._starts[i + 1]
+        return FrameObservations(
+            index=self._index[i], t=self._t[i], ids=self._ids[s:e].copy(), uv=self._uv[s:e].copy()
+        )
+
+
+def read_track_table(path: PathLike) -> TrackTable:
+    """Read a tracks CSV as a :class:`TrackTable` (what :func:`read_tracks` lists).
+
     Raises:
         InputError: "<file>:<line>: ..." for a bad header, a row that is not 5
             numbers, NaN/inf, a non-integer or negative frame, a non-integer id,
@@ -99,14 +147,13 @@ def read_tracks(path: PathLike) -> list[FrameObservations]:
         )
 
     starts = np.flatnonzero(np.concatenate(([True], step > 0)))
-    ends = np.append(starts[1:], len(frame))
-    ids_int = ids.astype(np.int64)
-    return [
-        FrameObservations(
-            index=int(frame[s]), t=float(t[s]), ids=ids_int[s:e].copy(), uv=uv[s:e].copy()
-        )
-        for s, e in zip(starts, ends, strict=True)
-    ]
+    return TrackTable(
+        frame[starts].astype(np.int64),
+        t[starts],
+        np.append(starts, len(frame)),
+        ids.astype(np.int64),
+        np.ascontiguousarray(uv),
+    )
 
 
 def write_tracks(path: PathLike, observations: Sequence[FrameObservations]) -> None:
