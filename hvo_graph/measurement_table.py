@@ -104,6 +104,26 @@ def _compact(frame: FrameMeasurement) -> bool:
     )
 
 
+_UPPER = np.triu_indices(6)
+_LOWER = (_UPPER[1], _UPPER[0])
+
+
+class _Covariances:
+    """(n, 6, 6) covariances: their 21 upper-triangular entries when every one is exactly
+    symmetric (as the front end makes them), else as given."""
+
+    def __init__(self, stack: np.ndarray) -> None:
+        self.symmetric = bool(np.array_equal(stack, np.swapaxes(stack, 1, 2)))
+        self.values = stack[:, _UPPER[0], _UPPER[1]].copy() if self.symmetric else stack
+
+    def __getitem__(self, k: int) -> np.ndarray:
+        if not self.symmetric:
+            return self.values[k]
+        out = np.empty((6, 6))
+        out[_UPPER] = out[_LOWER] = self.values[k]
+        return out
+
+
 def _offsets(lengths: list[int]) -> np.ndarray:
     return np.concatenate(([0], np.cumsum(lengths, dtype=np.int64)))
 
@@ -136,6 +156,8 @@ class _Block:
             k: np.array([getattr(p, k) for p in poses]).reshape(-1, *s)
             for k, s in {**_POSE_FIELDS, **_SHARED}.items()
         }
+        for k in ("covariance", "reference_covariance"):
+            self.pose[k] = _Covariances(self.pose[k])  # type: ignore[assignment]
         self.reference = np.array([p.reference for p in poses], dtype=np.int64)
         self.reference_ids = np.concatenate(
             [p.reference_ids for p in poses] or [np.empty(0, np.int64)]
@@ -149,6 +171,7 @@ class _Block:
             k: np.array([getattr(v, k) for v in velocities]).reshape(-1, *s)
             for k, s in _VELOCITY_FIELDS.items()
         }
+        self.velocity["covariance"] = _Covariances(self.velocity["covariance"])  # type: ignore[assignment]
         times = [(v.t, v.dt) for v in velocities]
         self.velocity_times = np.array(times, dtype=float).reshape(-1, 2)
         self.velocity_float = [type(v.t) is float for v in velocities]
@@ -258,6 +281,7 @@ class MeasurementTable(Sequence[FrameMeasurement]):
         if self._open:
             self._blocks.append(_Block(self._open))
             self._open = []
+            self._all_columns()
 
     def _all_columns(self) -> np.ndarray:
         if self._pending:

@@ -15,7 +15,7 @@ import os
 import secrets
 import shutil
 import tempfile
-from collections.abc import Iterator, Sequence
+from collections.abc import Iterable, Iterator, Sequence
 from contextlib import contextmanager
 from pathlib import Path
 
@@ -26,8 +26,9 @@ from hvo_graph.errors import InputError
 PathLike = str | os.PathLike
 
 
-def atomic_write_text(path: PathLike, text: str) -> None:
-    """Write ``text`` (UTF-8, ``\\n`` line ends) to ``path`` atomically.
+def atomic_write_text(path: PathLike, text: str | Iterable[str]) -> None:
+    """Write ``text`` (UTF-8, ``\\n`` line ends; a string or its pieces in order) to
+    ``path`` atomically.
 
     The temporary file is created with mode 0o666 minus the umask (what a
     plain ``open(path, "w")`` would give), then fsynced and renamed.
@@ -37,7 +38,7 @@ def atomic_write_text(path: PathLike, text: str) -> None:
     fd = os.open(tmp, os.O_WRONLY | os.O_CREAT | os.O_EXCL, 0o666)
     try:
         with os.fdopen(fd, "w", encoding="utf-8", newline="\n") as f:
-            f.write(text)
+            f.writelines([text] if isinstance(text, str) else text)
             f.flush()
             os.fsync(f.fileno())
         os.replace(tmp, path)

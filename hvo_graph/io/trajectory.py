@@ -26,6 +26,7 @@ from __future__ import annotations
 
 import json
 import math
+from collections.abc import Iterator
 from pathlib import Path
 
 import gtsam
@@ -96,6 +97,19 @@ def _check_trajectory(trajectory: Trajectory) -> tuple[np.ndarray, np.ndarray, n
     return t, R, p
 
 
+#: Rows formatted per piece of a written file (bounds the text held at once).
+_ROWS_PER_PIECE = 4096
+
+
+def _text(header: str, table: np.ndarray, sep: str) -> Iterator[str]:
+    """The lines ``header`` and each row of ``table`` (repr of every value, ``sep``
+    between), in pieces of :data:`_ROWS_PER_PIECE` rows: a long file is never one string."""
+    yield header + "\n"
+    for start in range(0, len(table), _ROWS_PER_PIECE):
+        rows = (table[start : start + _ROWS_PER_PIECE] + 0.0).tolist()  # + 0.0: no "-0.0"
+        yield "".join(sep.join(map(repr, row)) + "\n" for row in rows)
+
+
 def write_tum(path: PathLike, trajectory: Trajectory) -> None:
     """Write the poses T_wc of ``trajectory`` as a TUM file (atomically).
 
@@ -107,9 +121,7 @@ def write_tum(path: PathLike, trajectory: Trajectory) -> None:
     """
     t, R, p = _check_trajectory(trajectory)
     q = _quaternions(R)
-    rows = (np.column_stack((t, p, q)) + 0.0).tolist()  # + 0.0: no "-0.0" (as fmt)
-    lines = [_TUM_COMMENT, *(" ".join(map(repr, row)) for row in rows)]
-    atomic_write_text(path, "\n".join(lines) + "\n")
+    atomic_write_text(path, _text(_TUM_COMMENT, np.column_stack((t, p, q)), " "))
 
 
 def _quaternions(R: np.ndarray) -> np.ndarray:
@@ -204,9 +216,8 @@ def write_velocity(path: PathLike, t: np.ndarray, twists: np.ndarray) -> None:
         raise InputError(
             f"twists[{int(np.flatnonzero(bad)[0])}]: expected finite values (or NaN in all six)"
         )
-    rows = (np.column_stack((t, twists[:, 3:], twists[:, :3])) + 0.0).tolist()
-    lines = [VELOCITY_HEADER, *(",".join(map(repr, row)) for row in rows)]
-    atomic_write_text(path, "\n".join(lines) + "\n")
+    table = np.column_stack((t, twists[:, 3:], twists[:, :3]))
+    atomic_write_text(path, _text(VELOCITY_HEADER, table, ","))
 
 
 def read_velocity(path: PathLike) -> tuple[np.ndarray, np.ndarray]:
@@ -241,9 +252,9 @@ def write_covariance(path: PathLike, t: np.ndarray, covariances: np.ndarray) -> 
         raise InputError(f"covariances: expected shape ({len(t)}, 12, 12), got {cov.shape}")
     if np.any(np.isinf(cov)):
         raise InputError("covariances: contains inf")
-    rows = (np.column_stack((t, cov[:, _IU[0], _IU[1]])) + 0.0).tolist()
-    lines = [COVARIANCE_HEADER, *(",".join(map(repr, row)) for row in rows)]
-    atomic_write_text(path, "\n".join(lines) + "\n")
+    atomic_write_text(
+        path, _text(COVARIANCE_HEADER, np.column_stack((t, cov[:, _IU[0], _IU[1]])), ",")
+    )
 
 
 def read_covariance(path: PathLike) -> tuple[np.ndarray, np.ndarray]:
