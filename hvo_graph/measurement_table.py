@@ -17,6 +17,7 @@ as given.
 
 from __future__ import annotations
 
+import bisect
 from collections.abc import Iterable, Iterator, Sequence
 from dataclasses import dataclass
 from typing import overload
@@ -245,12 +246,14 @@ class MeasurementTable(Sequence[FrameMeasurement]):
 
     def __init__(self, frames: Iterable[FrameMeasurement] = ()) -> None:
         self._blocks: list[_Block] = []
+        self._first: list[int] = []  # position of each block's first frame
         self._open: list[FrameMeasurement] = []
         self._index: list[int] = []
         self._t: list[float] = []
         self._columns = np.zeros((0, 5), dtype=np.int64)  # sealed rows' integer columns
         self._pending: list[tuple[int, ...]] = []
         self.extend(frames)
+        self.compact()
 
     def append(self, frame: FrameMeasurement) -> None:
         """Add the next frame's record."""
@@ -269,19 +272,23 @@ class MeasurementTable(Sequence[FrameMeasurement]):
                 -1 if pose is None else int(pose.reference),
             )
         )
-        if len(self._open) == BLOCK_FRAMES:
-            self._seal()
+        if len(self._open) >= BLOCK_FRAMES:
+            self.compact()
 
     def extend(self, frames: Iterable[FrameMeasurement]) -> None:
         """:meth:`append` each record in turn."""
         for frame in frames:
             self.append(frame)
 
-    def _seal(self) -> None:
+    def compact(self) -> MeasurementTable:
+        """Store the records appended since the last block as arrays (done by itself
+        every :data:`BLOCK_FRAMES` frames; call it after the last); returns the table."""
         if self._open:
+            self._first.append(len(self) - len(self._open))
             self._blocks.append(_Block(self._open))
             self._open = []
             self._all_columns()
+        return self
 
     def _all_columns(self) -> np.ndarray:
         if self._pending:
@@ -306,9 +313,11 @@ class MeasurementTable(Sequence[FrameMeasurement]):
         i = int(k) + n if int(k) < 0 else int(k)
         if not 0 <= i < n:
             raise IndexError(f"frame {k} out of range ({n} frames)")
-        block, row = divmod(i, BLOCK_FRAMES)
-        if block == len(self._blocks):
-            return self._open[row]
+        opened = len(self) - len(self._open)
+        if i >= opened:
+            return self._open[i - opened]
+        block = bisect.bisect_right(self._first, i) - 1
+        row = i - self._first[block]
         counts = self._all_columns()[i, 2:4]
         return self._blocks[block].record(
             row, self._index[i], self._t[i], (int(counts[0]), int(counts[1]))

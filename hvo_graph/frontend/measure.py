@@ -247,13 +247,13 @@ class MeasurementFrontEnd:
         return FrameMeasurement(obs.index, obs.t, pose, velocity, len(obs.ids), rejected, points)
 
     def process_all(self, observations: Iterable[FrameObservations]) -> list[FrameMeasurement]:
-        """:meth:`process` of every frame in order; stretches of frames that see the same
-        tracks are measured at once (the same records to rounding, the same state after)."""
+        """:meth:`process` of every frame in order (same-track stretches measured at once)."""
         return list(measure_frames(self, observations, ROBUST_MIN_POINTS, HUBER))
 
     def process_table(self, observations: Iterable[FrameObservations]) -> MeasurementTable:
         """:meth:`process_all` into a :class:`~hvo_graph.measurement_table.MeasurementTable`."""
-        return measure_frames(self, observations, ROBUST_MIN_POINTS, HUBER, MeasurementTable())  # type: ignore[arg-type,return-value]
+        out = measure_frames(self, observations, ROBUST_MIN_POINTS, HUBER, MeasurementTable())  # type: ignore[arg-type]
+        return out.compact()  # type: ignore[attr-defined]
 
     @property
     def excluded_tracks(self) -> frozenset[int]:
