@@ -12,6 +12,7 @@ with 1-based line numbers.
 from __future__ import annotations
 
 import os
+import re
 import secrets
 import shutil
 import tempfile
@@ -189,6 +190,38 @@ def check_header(path: PathLike, lines: list[str], header: str) -> None:
         raise InputError(f"{path}:1: expected the header line '{header}', got an empty file")
     if lines[0].strip() != header:
         raise InputError(f"{path}:1: expected the header line '{header}', got {lines[0].strip()!r}")
+
+
+#: ASCII line breaks other than "\n" (str.splitlines sees them; numpy's reader does not).
+_OTHER_BREAKS = "\r\x0b\x0c\x1c\x1d\x1e"
+#: A blank line between rows (csv_body names it).
+_BLANK_LINE = re.compile(r"\n[ \t]*\n")
+
+
+def plain_csv_table(path: PathLike, text: str, header: str, ncols: int) -> np.ndarray | None:
+    """The table of a plain CSV file (``text`` its contents) read by numpy straight from
+    the file, without a Python string per line; None when anything is unusual (a header
+    other than ``header``, no rows, a blank line, another line break, a row numpy refuses
+    or of another width), so that :func:`csv_body` and :func:`parse_table` name it.
+
+    Returns:
+        (rows, ncols) float array, row i from line i + 2, as :func:`parse_table` parses it.
+    """
+    start = text.find("\n")
+    if start < 0 or text[:start].strip() != header or not text.isascii():
+        return None
+    body = text[start + 1 :].rstrip()
+    if not body[: body.find("\n") % (len(body) + 1)].strip():  # no rows, or a blank first
+        return None
+    if any(c in text for c in _OTHER_BREAKS) or _BLANK_LINE.search(body):
+        return None
+    try:
+        table = np.loadtxt(
+            path, delimiter=",", skiprows=1, comments=None, ndmin=2, dtype=float, encoding="utf-8"
+        )
+    except (ValueError, OSError):
+        return None
+    return table if table.shape == (body.count("\n") + 1, ncols) else None
 
 
 def csv_body(path: PathLike, text: str, header: str) -> tuple[list[str], np.ndarray]:

@@ -30,6 +30,7 @@ from hvo_graph.io._common import (
     csv_body,
     first_line,
     parse_table,
+    plain_csv_table,
     read_text,
 )
 from hvo_graph.types import FrameObservations
@@ -103,10 +104,16 @@ def read_track_table(path: PathLike) -> TrackTable:
             a file with no rows.
         OSError: when the file cannot be read.
     """
-    body, linenos = csv_body(path, read_text(path), HEADER)
-    if not body:
-        raise InputError(f"{path}:2: expected at least one observation row after the header")
-    table = parse_table(path, body, linenos, _COLUMNS, ",")
+    text = read_text(path)
+    table = plain_csv_table(path, text, HEADER, len(_COLUMNS))  # the usual file, fast
+    if table is None:
+        body, linenos = csv_body(path, text, HEADER)
+        if not body:
+            raise InputError(f"{path}:2: expected at least one observation row after the header")
+        table = parse_table(path, body, linenos, _COLUMNS, ",")
+    else:
+        linenos = np.arange(2, len(table) + 2)
+    del text
     check_finite(path, table, linenos, _COLUMNS)
     frame, t, ids, uv = table[:, 0], table[:, 1], table[:, 2], table[:, 3:5]
 
