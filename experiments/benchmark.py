@@ -38,7 +38,8 @@ run is just a longer duration) this script
 7. runs ``hvo-graph estimate`` end to end (``--cli-frames``, default 30,000 frames)
    for the default smoother, the fixed-lag smoother and the Kalman filter, each in
    a fresh process on a tracks CSV written as ``hvo-graph simulate`` writes it:
-   wall and CPU time and the process's peak memory;
+   wall and CPU time and the process's peak memory; the two smoothers also on
+   ``--cli-memory-frames`` (default 100,000) frames;
 8. times the images path on rendered 640 x 480 PNG files (``--image-frames``,
    default 450) beside a bare OpenCV loop (decode, detection, KLT) on the same
    files, and ``hvo-graph estimate --images`` end to end
@@ -1026,15 +1027,21 @@ def reference_sections(args: argparse.Namespace) -> list[tuple[str, str]]:
         sections.append(("Each stage beside its reference", text))
     cli = args.cli_frames
     cli = (300 if args.quick else 30000) if cli is None else cli
-    if cli:
-        _progress(f"end to end: hvo-graph estimate on {cli:,} frames")
+    long = args.cli_memory_frames
+    long = (1000 if args.quick else 100000) if long is None else long
+    if cli or long:
+        _progress(f"end to end: hvo-graph estimate on {cli:,} and {long:,} frames")
+        runs = refs.cli_runs(cli, args.seed) if cli else []
+        if long:  # the smoothers' memory on a long sequence
+            runs += refs.cli_runs(long, args.seed, ("smoother", "fixed-lag"))
         text = "\n\n".join(
             [
                 f"`hvo-graph estimate` on a {cli:,}-frame tracks CSV of the paper's scenario "
                 "(written as `hvo-graph simulate` writes it), one fresh process per method, as "
                 "a user runs it: reading the CSV, the front end, the estimator and every "
-                "output file.",
-                refs.cli_section(refs.cli_runs(cli, args.seed)),
+                f"output file; the smoother and the fixed-lag smoother also on {long:,} frames "
+                "(their peak memory over a long sequence).",
+                refs.cli_section(runs),
             ]
         )
         sections.append(("End to end", text))
@@ -1101,6 +1108,12 @@ def build_parser() -> argparse.ArgumentParser:
         type=int,
         help="frames of the end-to-end hvo-graph estimate runs (default 30,000, --quick "
         "300, 0 none)",
+    )
+    parser.add_argument(
+        "--cli-memory-frames",
+        type=int,
+        help="frames of the end-to-end runs of the smoother and the fixed-lag smoother on a "
+        "long sequence (default 100,000, --quick 1,000, 0 none)",
     )
     parser.add_argument(
         "--image-frames",
