@@ -326,13 +326,20 @@ def _upper_interval_ends(
     optimum, is within :data:`INTERVAL_DROP` of the maximum."""
     ends = []
     steps = np.arange(0.0, hi - min(best) + INTERVAL_STEP, INTERVAL_STEP)
-    for axis in (0, 1):
-        trial = np.clip(best[axis] + steps, None, hi)
-        other = np.full(len(trial), best[1 - axis])
-        q_w, q_v = (trial, other) if axis == 0 else (other, trial)
-        ll = likelihood(t, s, C, 10.0**q_w, 10.0**q_v, OUTLIER_GATE)
+    trials = [np.clip(best[axis] + steps, None, hi) for axis in (0, 1)]
+    others = [np.full(len(steps), best[1 - axis]) for axis in (0, 1)]
+    q_w, q_v = [trials[0], others[1]], [others[0], trials[1]]
+    if likelihood is log_likelihood:
+        # Both axes in one pass over the poses: the WNA filter computes each pair's row
+        # alone (the same numbers for any number of pairs); the WNJ's stacked products not.
+        q = (10.0 ** np.concatenate(q_w), 10.0 ** np.concatenate(q_v))
+        both = likelihood(t, s, C, *q, OUTLIER_GATE)
+        lls = np.split(both, 2)
+    else:
+        lls = [likelihood(t, s, C, 10.0 ** q_w[a], 10.0 ** q_v[a], OUTLIER_GATE) for a in (0, 1)]
+    for axis, ll in enumerate(lls):
         inside = np.flatnonzero(ll >= best_ll - INTERVAL_DROP)
-        ends.append(float(trial[inside.max()]) if inside.size else best[axis])
+        ends.append(float(trials[axis][inside.max()]) if inside.size else best[axis])
     return ends[0], ends[1]
 
 
