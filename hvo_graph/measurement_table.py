@@ -184,7 +184,8 @@ class _Block:
         self.normals: list[np.ndarray] = []
         ids_of: dict[int, int] = {}
         self.normal_of = np.array(
-            [ids_of.setdefault(id(p.normal), len(ids_of)) for p in points], dtype=np.int64
+            [ids_of.setdefault(id(p.normal), len(ids_of)) for p in points],
+            dtype=np.int64,
         )
         seen: set[int] = set()
         for p in points:
@@ -248,6 +249,8 @@ class MeasurementTable(Sequence[FrameMeasurement]):
         self._blocks: list[_Block] = []
         self._first: list[int] = []  # position of each block's first frame
         self._open: list[FrameMeasurement] = []
+        # Frame numbers and times of the stored blocks (arrays), then of the open records.
+        self._sealed_index, self._sealed_t = np.zeros(0, np.int64), np.zeros(0)
         self._index: list[int] = []
         self._t: list[float] = []
         self._columns = np.zeros((0, 5), dtype=np.int64)  # sealed rows' integer columns
@@ -286,7 +289,9 @@ class MeasurementTable(Sequence[FrameMeasurement]):
         if self._open:
             self._first.append(len(self) - len(self._open))
             self._blocks.append(_Block(self._open))
-            self._open = []
+            self._sealed_index = np.append(self._sealed_index, np.array(self._index, np.int64))
+            self._sealed_t = np.append(self._sealed_t, np.array(self._t, dtype=float))
+            self._open, self._index, self._t = [], [], []
             self._all_columns()
         return self
 
@@ -298,7 +303,7 @@ class MeasurementTable(Sequence[FrameMeasurement]):
         return self._columns
 
     def __len__(self) -> int:
-        return len(self._index)
+        return len(self._sealed_index) + len(self._open)
 
     @overload
     def __getitem__(self, k: int) -> FrameMeasurement: ...
@@ -319,9 +324,8 @@ class MeasurementTable(Sequence[FrameMeasurement]):
         block = bisect.bisect_right(self._first, i) - 1
         row = i - self._first[block]
         counts = self._all_columns()[i, 2:4]
-        return self._blocks[block].record(
-            row, self._index[i], self._t[i], (int(counts[0]), int(counts[1]))
-        )
+        index, t = int(self._sealed_index[i]), float(self._sealed_t[i])
+        return self._blocks[block].record(row, index, t, (int(counts[0]), int(counts[1])))
 
     def __iter__(self) -> Iterator[FrameMeasurement]:
         for i in range(len(self)):
@@ -355,7 +359,7 @@ class MeasurementTable(Sequence[FrameMeasurement]):
     @property
     def indices(self) -> list[int]:
         """The frame indices, in order."""
-        return list(self._index)
+        return [*self._sealed_index.tolist(), *self._index]
 
 
 @dataclass(frozen=True)
@@ -402,5 +406,10 @@ def frame_columns(frames: Sequence[FrameMeasurement]) -> FrameColumns:
     ]
     table = np.array(rows, dtype=np.int64).reshape(-1, 6)
     return FrameColumns(
-        table[:, 0], table[:, 1] > 0, table[:, 2] > 0, table[:, 3], table[:, 4], table[:, 5]
+        table[:, 0],
+        table[:, 1] > 0,
+        table[:, 2] > 0,
+        table[:, 3],
+        table[:, 4],
+        table[:, 5],
     )

@@ -69,7 +69,7 @@ class TrackTable(Sequence[FrameObservations]):
     def __init__(
         self, index: np.ndarray, t: np.ndarray, starts: np.ndarray, ids: np.ndarray, uv: np.ndarray
     ) -> None:
-        self._index, self._t, self._starts = index.tolist(), t.tolist(), starts.tolist()
+        self._index, self._t, self._starts = index, t, starts  # arrays: 8 bytes a number
         self._ids, self._uv = ids, uv
 
     def __len__(self) -> int:
@@ -87,9 +87,12 @@ class TrackTable(Sequence[FrameObservations]):
         i = k + len(self) if k < 0 else k
         if not 0 <= i < len(self):
             raise IndexError(f"frame {k} out of range ({len(self)} frames)")
-        s, e = self._starts[i], self._starts[i + 1]
+        s, e = int(self._starts[i]), int(self._starts[i + 1])
         return FrameObservations(
-            index=self._index[i], t=self._t[i], ids=self._ids[s:e].copy(), uv=self._uv[s:e].copy()
+            index=int(self._index[i]),
+            t=float(self._t[i]),
+            ids=self._ids[s:e].copy(),
+            uv=self._uv[s:e].copy(),
         )
 
 
