@@ -51,6 +51,13 @@ _POSE, _LANDMARK = ord("x"), ord("l")
 #: frames of 4 points, ~0.1 GB).
 CACHED_FACTORS: int = 60000
 
+#: Two consecutive steps this aligned (cosine) make the next one tried extrapolated.
+EXTRAPOLATE_COSINE: float = 0.95
+
+#: The extrapolation is tried only for steps shrinking at least this fast (1 / (1 - rho)
+#: up to 20).
+MAX_RATIO: float = 0.95
+
 
 class _Chunks:
     """The chunks of a store's graph and their linear systems at some values."""
@@ -131,9 +138,9 @@ class _Chunks:
             ordering.push_back(key)
         return ordering
 
-    def step(self, values: gtsam.Values, lam: float) -> tuple[gtsam.Values, float, float]:
-        """The values after the damped Gauss-Newton step at ``values`` (forward, then
-        backward pass), the graph's error there, and the step's largest coordinate."""
+    def step(self, values: gtsam.Values, lam: float, scale: float = 1.0) -> _Step:
+        """The damped Gauss-Newton step at ``values`` (forward, then backward pass), and the
+        graph's error after it and, for ``scale`` != 1, after it times ``scale``."""
         root = float(np.sqrt(lam))
         self.linearized.clear()
         incoming = []
@@ -155,7 +162,8 @@ class _Chunks:
         nonlinear, linear = self.linear(last, values, root)
         linear.push_back(carried)
         delta = linear.optimize(self.ordering(last, keep_last=False))
-        error = nonlinear.error(_moved(values, delta, nonlinear))
+        scales = (1.0,) if scale == 1.0 else (1.0, scale)
+        errors = _graph_error(nonlinear, values, delta, scales)
         for c in range(last - 1, -1, -1):
             ordering = self.ordering(c, keep_last=True)
             eliminated = [ordering.at(n) for n in range(ordering.size())]
@@ -167,40 +175,55 @@ class _Chunks:
                 nonlinear = self.graph(c)
             else:
                 nonlinear, linear = self.linear(c, values, root)
-                solved = _conditioned_solve(incoming[c], linear, ordering, delta)
+                linear.push_back(incoming[c])
+                net, remaining = linear.eliminatePartialSequential(ordering)
+                given = gtsam.VectorValues()
+                for key in remaining.keyVector():  # solved: eliminated after the chunk
+                    given.insert(key, delta.at(key))
+                solved = net.optimize(given)
             for key in eliminated:
                 delta.insert(key, solved.at(key))
             # Every variable of the chunk's factors is solved now: their error after the
             # step, while they are at hand (chunk 0's include the landmarks' own).
-            error += nonlinear.error(_moved(values, delta, nonlinear))
-        return values.retract(delta), error, float(np.abs(delta.vector()).max())
+            errors += _graph_error(nonlinear, values, delta, scales)
+        return _Step(delta, *errors)
 
 
-def _conditioned_solve(
-    incoming: gtsam.GaussianFactorGraph,
-    linear: gtsam.GaussianFactorGraph,
-    ordering: gtsam.Ordering,
+class _Step:
+    """A step ``delta``, the graph's error after it and after it extrapolated (its
+    multiple, :func:`chunked_levenberg_marquardt`; None: not tried)."""
+
+    def __init__(
+        self, delta: gtsam.VectorValues, error: float, extrapolated: float | None = None
+    ) -> None:
+        self.delta, self.error, self.extrapolated = delta, float(error), extrapolated
+
+    def vector(self) -> np.ndarray:
+        """The step as one vector (keys in order)."""
+        return self.delta.vector()
+
+
+def _graph_error(
+    graph: gtsam.NonlinearFactorGraph,
+    values: gtsam.Values,
     delta: gtsam.VectorValues,
-) -> gtsam.VectorValues:
-    """The chunk's variables (``ordering``) given the solution ``delta`` of everything else
-    its factors touch: those held there (hard constraints, eliminated last)."""
-    conditioned = gtsam.GaussianFactorGraph()
-    conditioned.push_back(incoming)
-    conditioned.push_back(linear)
-    eliminated = {ordering.at(n) for n in range(ordering.size())}
-    for key in conditioned.keyVector():
-        if key not in eliminated:
-            given = delta.at(key)
-            dim = len(given)
-            conditioned.add(key, np.eye(dim), given, gtsam.noiseModel.Constrained.All(dim))
-            ordering.push_back(key)
-    return conditioned.optimize(ordering)
+    scales: tuple[float, ...],
+) -> np.ndarray:
+    """The error of ``graph`` at ``values`` moved by ``delta`` times each of ``scales``."""
+    subset = _subset(values, graph)
+    errors = []
+    for scale in scales:
+        moved = delta
+        if scale != 1.0:
+            moved = gtsam.VectorValues()
+            for key in graph.keyVector():
+                moved.insert(key, scale * delta.at(key))
+        errors.append(graph.error(subset.retract(moved)))
+    return np.array(errors)
 
 
-def _moved(
-    values: gtsam.Values, delta: gtsam.VectorValues, graph: gtsam.NonlinearFactorGraph
-) -> gtsam.Values:
-    """``values`` of the keys of ``graph``, moved by ``delta``."""
+def _subset(values: gtsam.Values, graph: gtsam.NonlinearFactorGraph) -> gtsam.Values:
+    """``values`` of the keys of ``graph``."""
     subset = gtsam.Values()
     for key in graph.keyVector():
         kind = gtsam.Symbol(key).chr()
@@ -210,7 +233,7 @@ def _moved(
             subset.insert(key, values.atPoint3(key))
         else:
             subset.insert(key, values.atVector(key))
-    return subset.retract(delta)
+    return subset
 
 
 def chunked_levenberg_marquardt(
@@ -227,7 +250,15 @@ def chunked_levenberg_marquardt(
     graph by Levenberg-Marquardt, each linear system solved ``chunk`` frames at a time.
 
     The scheme, tolerances and defaults are those of
-    :func:`~hvo_graph.estimators.least_squares.levenberg_marquardt` (module docstring).
+    :func:`~hvo_graph.estimators.least_squares.levenberg_marquardt` (module docstring),
+    with one addition: when two consecutive steps point the same way (cosine above
+    :data:`EXTRAPOLATE_COSINE`), the second shorter by a ratio rho < 1, the next step is
+    also tried extrapolated, times 1 / (1 - rho) (the sum of the steps to come if they
+    kept shrinking so), and taken so when its error is the lower. Why: the Huber loss of
+    the projection factors is linearized by reweighting (iteratively reweighted least
+    squares converges linearly), and on long runs the iterates creep along one global
+    direction (30,000 frames of the paper's scenario: each step 0.63 times the previous). A step is still taken only when it lowers the whole
+    graph's error and the stopping rule is unchanged, so the optimum is the same.
     Returns (iterations used, the largest coordinate of any step taken).
     """
     chunks = _Chunks(store, chunk)
@@ -236,21 +267,47 @@ def chunked_levenberg_marquardt(
     lam = initial_lambda
     current = values
     iterations = 0
+    previous: np.ndarray | None = None  # the last step, when it was taken as computed
+    scale = 1.0
     while iterations < max_iterations:
         iterations += 1
         while True:
-            candidate, candidate_error, size = chunks.step(current, lam)
-            if candidate_error <= error:
+            step = chunks.step(current, lam, scale)
+            best = min(step.error, np.inf if step.extrapolated is None else step.extrapolated)
+            if best <= error:
                 lam = max(lam / 10.0, 1e-15)
-                largest = max(largest, size)
                 break
             lam *= 10.0
             if lam > 1e10:  # no descent direction left: converged as far as it goes
-                candidate, candidate_error = current, error
+                step = None
                 break
+        if step is None:
+            break
+        vector = step.vector()
+        if step.extrapolated is not None and step.extrapolated < step.error:
+            taken, candidate_error, previous = scale, step.extrapolated, None
+        else:
+            taken, candidate_error = 1.0, step.error
+            scale, previous = _extrapolation(previous, vector), vector
+        if taken != 1.0:
+            scale = 1.0
+        current = current.retract(step.delta if taken == 1.0 else step.delta.scale(taken))
+        largest = max(largest, taken * float(np.abs(vector).max()))
         decrease = error - candidate_error
-        current, error = candidate, candidate_error
+        error = candidate_error
         if decrease <= relative_tolerance * error + absolute_tolerance:
             break
     values.update(current)
     return iterations, largest
+
+
+def _extrapolation(previous: np.ndarray | None, vector: np.ndarray) -> float:
+    """The multiple 1 / (1 - rho) for the next step when ``vector`` is ``previous`` shrunk
+    by rho < 1 in about the same direction (1: no extrapolation)."""
+    if previous is None:
+        return 1.0
+    norms = float(np.linalg.norm(previous)) * float(np.linalg.norm(vector))
+    if norms == 0.0 or float(previous @ vector) < EXTRAPOLATE_COSINE * norms:
+        return 1.0
+    ratio = float(np.linalg.norm(vector) / np.linalg.norm(previous))
+    return 1.0 / (1.0 - ratio) if ratio < MAX_RATIO else 1.0

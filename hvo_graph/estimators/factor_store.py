@@ -249,15 +249,16 @@ class FactorStore:
         lo, hi = first, stop
         motion = self._motion.view()
         late = stop if newest else stop + 1
-        for p, dt, s_w, s_v, model in motion[(motion[:, 0] >= first) & (motion[:, 0] < late)]:
-            p = int(p)
-            previous, k = int(indices[p - 1]), int(indices[p])
-            sigma = (float(s_w), float(s_v))
+        motion = motion[(motion[:, 0] >= first) & (motion[:, 0] < late)]
+        places = motion[:, 0].astype(np.int64)  # lists: numpy scalars are slow one by one
+        pairs = zip(indices[places - 1].tolist(), indices[places].tolist(), strict=True)
+        for (previous, k), (_, dt, s_w, s_v, model) in zip(pairs, motion.tolist(), strict=True):
             for factor in self._motion_factors(
-                MOTION_MODELS[int(model)], previous, k, float(dt), sigma
+                MOTION_MODELS[int(model)], previous, k, dt, (s_w, s_v)
             ):
                 graph.add(factor)
-            lo, hi = min(lo, p - 1), max(hi, p + 1)
+        if len(places):
+            lo, hi = min(lo, int(places.min()) - 1), max(hi, int(places.max()) + 1)
         prior = self._prior.view()
         for row in prior[(prior[:, 0] >= first) & (prior[:, 0] < stop)]:
             pose = gtsam.Pose3(gtsam.Rot3(row[1:10].reshape(3, 3)), row[10:13])
@@ -270,15 +271,13 @@ class FactorStore:
             graph.add(self._other[i])
             lo, hi = min(lo, int(span[i, 0])), max(hi, int(span[i, 1]) + 1)
         rows, keys = self._observations(first, stop)
-        for (p, u, v, sigma), key in zip(rows.tolist(), keys.tolist(), strict=True):
+        poses = (np.uint64(X(0)) + indices[rows[:, 0].astype(np.int64)].astype(np.uint64)).tolist()
+        noise = {s: self.pixel_noise(s) for s in set(rows[:, 3].tolist())}  # type: ignore[misc]
+        for m, sigma, pose, key in zip(
+            rows[:, 1:3], rows[:, 3].tolist(), poses, keys.tolist(), strict=True
+        ):
             graph.add(
-                gtsam.GenericProjectionFactorCal3_S2(
-                    np.array([u, v]),
-                    self.pixel_noise(sigma),  # type: ignore[misc]
-                    X(int(indices[int(p)])),
-                    key,
-                    UNIT_CALIBRATION,
-                )
+                gtsam.GenericProjectionFactorCal3_S2(m, noise[sigma], pose, key, UNIT_CALIBRATION)
             )
         return graph, range(lo, hi)
 
