@@ -257,8 +257,9 @@ def chunked_levenberg_marquardt(
     kept shrinking so), and taken so when its error is the lower. Why: the Huber loss of
     the projection factors is linearized by reweighting (iteratively reweighted least
     squares converges linearly), and on long runs the iterates creep along one global
-    direction (30,000 frames of the paper's scenario: each step 0.63 times the previous). A step is still taken only when it lowers the whole
-    graph's error and the stopping rule is unchanged, so the optimum is the same.
+    direction (30,000 frames of the paper's scenario: each step 0.63 times the previous).
+    A step is still taken only when it lowers the whole graph's error and the stopping
+    rule is unchanged, so the optimum is the same.
     Returns (iterations used, the largest coordinate of any step taken).
     """
     chunks = _Chunks(store, chunk)
