@@ -9,8 +9,9 @@ does not fit it: moving every landmark and every frame together costs almost
 nothing (only the first frame is anchored), and alternating between them
 converges very slowly. Here each Levenberg-Marquardt iteration is the one of
 :func:`~hvo_graph.estimators.least_squares.levenberg_marquardt` on the whole
-graph (the same damping, acceptance and stopping rule, so the same optimum),
-with its linear system solved in two passes over chunks of frames:
+graph (the same damping, acceptance and stopping rule, so the same optimum; a
+step may also be extrapolated, :func:`chunked_levenberg_marquardt`), with its
+linear system solved in two passes over chunks of frames:
 
 - forward: a chunk's factors (those whose newest frame is in it) linearized at
   the current values, added to the factor carried from the previous chunk, and
