@@ -259,8 +259,9 @@ def chunked_levenberg_marquardt(
     the projection factors is linearized by reweighting (iteratively reweighted least
     squares converges linearly), and on long runs the iterates creep along one global
     direction (30,000 frames of the paper's scenario: each step 0.63 times the previous).
-    A step is still taken only when it lowers the whole graph's error and the stopping
-    rule is unchanged, so the optimum is the same.
+    After an extrapolated step that loses to the plain one, none is tried again. A step
+    is still taken only when it lowers the whole graph's error and the stopping rule is
+    unchanged, so the optimum is the same.
     Returns (iterations used, the largest coordinate of any step taken).
     """
     chunks = _Chunks(store, chunk)
@@ -270,7 +271,7 @@ def chunked_levenberg_marquardt(
     current = values
     iterations = 0
     previous: np.ndarray | None = None  # the last step, when it was taken as computed
-    scale = 1.0
+    scale, extrapolate = 1.0, True
     while iterations < max_iterations:
         iterations += 1
         while True:
@@ -289,8 +290,13 @@ def chunked_levenberg_marquardt(
         if step.extrapolated is not None and step.extrapolated < step.error:
             taken, candidate_error, previous = scale, step.extrapolated, None
         else:
+            # An extrapolation that lost: the creep is not along a line here (curved, as
+            # from the window's estimates at 100,000 frames): no more tries (each costs
+            # one more evaluation of the graph's error).
+            extrapolate = extrapolate and step.extrapolated is None
             taken, candidate_error = 1.0, step.error
-            scale, previous = _extrapolation(previous, vector), vector
+            scale = _extrapolation(previous, vector) if extrapolate else 1.0
+            previous = vector
         if taken != 1.0:
             scale = 1.0
         current = current.retract(step.delta if taken == 1.0 else step.delta.scale(taken))
