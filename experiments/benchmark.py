@@ -131,8 +131,8 @@ FPS = 30.0
 DEFAULT_BATCH_MAX_FRAMES = 10000
 #: Longest sequence of the tight graph by default: its final solve runs in bounded
 #: memory at any length, but from the window's estimates of a 100,000-frame run it
-#: needs tens of Levenberg-Marquardt iterations (~25 s each); ``--tight-max-frames``
-#: raises it.
+#: needs tens of Levenberg-Marquardt iterations (~20 s of CPU each: the iterates creep
+#: along a curved path); ``--tight-max-frames`` raises it.
 DEFAULT_TIGHT_MAX_FRAMES = 10000
 #: Parts of the longest run whose mean cost per frame makes the cost curve.
 CURVE_PARTS = 10
