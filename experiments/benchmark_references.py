@@ -20,7 +20,6 @@
 
 from __future__ import annotations
 
-import os
 import subprocess
 import sys
 import tempfile
@@ -282,19 +281,34 @@ def cli_runs(frames: int, seed: int, methods: tuple[str, ...] = CLI_METHODS) -> 
             command += ["--tracks", str(folder / "tracks.csv"), "--method", method]
             command += ["--out", str(Path(tmp) / method)]
             log = Path(tmp) / f"{method}.log"
+            usage_file = Path(tmp) / f"{method}.rusage"
             with open(log, "w", encoding="utf-8") as output:
                 start = time.perf_counter()
-                process = subprocess.Popen(command, stdout=output, stderr=subprocess.STDOUT)
-                _, status, usage = os.wait4(process.pid, 0)  # this child's own rusage
+                code = subprocess.call(
+                    [sys.executable, "-c", _LAUNCHER, str(usage_file), *command],
+                    stdout=output,
+                    stderr=subprocess.STDOUT,
+                )
                 wall = time.perf_counter() - start
-            process.returncode = os.waitstatus_to_exitcode(status)
-            if process.returncode != 0:
+            if code != 0:
                 print(log.read_text(encoding="utf-8")[-500:], file=sys.stderr)
-            cpu = usage.ru_utime + usage.ru_stime
-            runs.append(
-                CliRun(method, frames, wall, cpu, usage.ru_maxrss / 1024.0, process.returncode)
-            )
+            cpu, peak_kib = (float(v) for v in usage_file.read_text().split())
+            runs.append(CliRun(method, frames, wall, cpu, peak_kib / 1024.0, code))
     return runs
+
+
+# A process forked from this one starts with this one's peak resident set on Linux (exec
+# keeps the old address space's high-water mark in ru_maxrss), and this process holds
+# the simulated sequence: a small launcher forks the command instead, and writes the
+# command's own CPU seconds and peak resident set (KiB) from wait4.
+_LAUNCHER = """
+import os, subprocess, sys
+process = subprocess.Popen(sys.argv[2:])
+_, status, usage = os.wait4(process.pid, 0)
+with open(sys.argv[1], "w") as out:
+    out.write(f"{usage.ru_utime + usage.ru_stime} {usage.ru_maxrss}")
+sys.exit(os.waitstatus_to_exitcode(status))
+"""
 
 
 def cli_section(runs: list[CliRun]) -> str:
