@@ -1067,7 +1067,7 @@ def reference_sections(args: argparse.Namespace) -> list[tuple[str, str]]:
                 "per frame, nothing else), hvo_graph's tracking of the same files (the same "
                 "calls plus the forward-backward check, gates, re-identification and keyframe "
                 "re-alignment), and `hvo-graph estimate --images` end to end in a fresh "
-                "process (its start-up, about a second, included).",
+                "process (its start-up, the imports of numpy, OpenCV and GTSAM, included).",
                 stages.images_section(stages.image_stages(images, args.seed)),
             ]
         )
