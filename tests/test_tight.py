@@ -15,6 +15,7 @@ import gtsam
 import numpy as np
 import pytest
 from gtsam.symbol_shorthand import X
+from off_plane import with_off_plane_track
 
 from hvo_graph.cli import main
 from hvo_graph.errors import InputError
@@ -28,7 +29,7 @@ from hvo_graph.eval.metrics import error_series, summarize
 from hvo_graph.frontend import FrontEndConfig, measure_sequence
 from hvo_graph.pipeline import run_estimate
 from hvo_graph.sim.scenario import paper_scenario, simulate
-from hvo_graph.types import FrameObservations, PointObservations
+from hvo_graph.types import PointObservations
 
 SEEDS = (0, 1, 2, 3)
 
@@ -157,22 +158,6 @@ def test_online_window_keeps_the_information_of_older_frames():
         # The prior is linearized at the online estimates of its time (mm from the final
         # optimum): agreement to second order, far inside the pose error (~6 mm).
         np.testing.assert_allclose(pose.translation(), whole.positions[k], atol=2e-4)
-
-
-def with_off_plane_track(scenario, track=99, height=0.4):
-    """The scenario's tracks plus one point ``height`` m in front of the plane."""
-    n = scenario.plane.normal
-    X = scenario.points_world.mean(axis=0) + 0.1 * np.cross(n, [1.0, 0.0, 0.0]) - height * n
-    truth = scenario.groundtruth
-    rng = np.random.default_rng(7)
-    out = []
-    for k, obs in enumerate(scenario.observations):
-        c = truth.rotations[k].T @ (X - truth.positions[k])
-        uv = scenario.camera.project(c[None])[0] + scenario.pixel_sigma * rng.standard_normal(2)
-        out.append(
-            FrameObservations(obs.index, obs.t, np.append(obs.ids, track), np.vstack((obs.uv, uv)))
-        )
-    return out
 
 
 def test_off_plane_track_is_rejected():

@@ -18,6 +18,7 @@ import gtsam
 import numpy as np
 import pytest
 from gtsam.symbol_shorthand import X
+from off_plane import with_off_plane_track
 
 from hvo_graph.estimators import chunked_lm, factor_store
 from hvo_graph.estimators.factor_store import FactorStore, copy_value
@@ -25,7 +26,6 @@ from hvo_graph.estimators.least_squares import levenberg_marquardt
 from hvo_graph.estimators.tight import TightSmoother
 from hvo_graph.pipeline import measure
 from hvo_graph.sim.scenario import paper_scenario, simulate
-from hvo_graph.types import FrameObservations
 
 #: Fixed process noise: no maximum-likelihood fit (not what is measured here).
 SIGMA = (0.05, 0.1)
@@ -137,22 +137,6 @@ def test_marginals_of_the_chunked_solve_are_the_batch_marginals():
         scale = np.sqrt(np.outer(np.diag(want), np.diag(want)))
         assert np.abs(got - want).max() / scale.max() < 1e-6
         assert np.abs((got - want) / scale).max() < 1e-5
-
-
-def with_off_plane_track(scenario, track=99, height=0.4):
-    """The scenario's tracks plus one point ``height`` m in front of the plane."""
-    n = scenario.plane.normal
-    point = scenario.points_world.mean(axis=0) + 0.1 * np.cross(n, [1.0, 0.0, 0.0]) - height * n
-    truth = scenario.groundtruth
-    rng = np.random.default_rng(7)
-    out = []
-    for k, obs in enumerate(scenario.observations):
-        c = truth.rotations[k].T @ (point - truth.positions[k])
-        uv = scenario.camera.project(c[None])[0] + scenario.pixel_sigma * rng.standard_normal(2)
-        out.append(
-            FrameObservations(obs.index, obs.t, np.append(obs.ids, track), np.vstack((obs.uv, uv)))
-        )
-    return out
 
 
 def test_a_rejected_track_leaves_the_chunked_solve():
