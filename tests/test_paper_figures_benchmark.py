@@ -144,7 +144,10 @@ def test_benchmark_quick_writes_the_table_machine_and_profile(tmp_path, capsys):
         frames, total, cpu, fps, first, last, ratio = map(number, r[1:8])
         assert total > 0 and cpu > 0 and first > 0 and last > 0
         assert fps == pytest.approx(frames / total, rel=0.01, abs=1.0)  # 3 digits of total
-        assert ratio == pytest.approx(last / first, rel=0.02, abs=0.01)
+        # first / last are printed to 0.001 ms and the ratio to 0.01: it must lie within
+        # what those roundings allow (a Kalman update takes ~0.02 ms, so 2 % and more)
+        low, high = (last - 5e-4) / (first + 5e-4), (last + 5e-4) / max(first - 5e-4, 1e-9)
+        assert low - 0.005 <= ratio <= high + 0.005
         assert number(r[9]) >= 0  # resident-set growth, MiB
         assert (r[8] == "-") == (r[0] == titles[0])  # only estimators have trajectory()
     isam2 = {r[1]: r for r in rows if r[0] == "smoother: ISAM2"}
