@@ -127,6 +127,22 @@ def unrolled_poses(
     return np.array(times), np.array(unrolled), np.array(covariances)
 
 
+def _initial_state(
+    s: np.ndarray, C: np.ndarray, q_w: np.ndarray, q_v: np.ndarray, n: int
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The M filters' start: per-axis densities q (M, 6) = [q_w x3, q_v x3], the state
+    x (M, n) at the first pose s_0, and P (M, n, n): C_0 on the pose, a broad 1e4 on
+    the rest (twist, twist rate)."""
+    m = len(q_w)
+    q = np.concatenate((np.repeat(q_w[:, None], 3, 1), np.repeat(q_v[:, None], 3, 1)), axis=1)
+    x = np.zeros((m, n))
+    x[:, :6] = s[0]
+    P = np.zeros((m, n, n))
+    P[:, :6, :6] = C[0]
+    P[:, 6:, 6:] = 1e4 * np.eye(n - 6)
+    return q, x, P
+
+
 def log_likelihood(
     t: np.ndarray,
     s: np.ndarray,
@@ -150,15 +166,9 @@ def log_likelihood(
     Returns:
         (M,) log-likelihoods of s_1..K given s_0.
     """
-    m = len(q_w)
-    q = np.concatenate((np.repeat(q_w[:, None], 3, 1), np.repeat(q_v[:, None], 3, 1)), axis=1)
+    q, x, P = _initial_state(s, C, q_w, q_v, 12)
     Q = q[:, :, None] * np.eye(6)[None]
-    x = np.zeros((m, 12))
-    x[:, :6] = s[0]
-    P = np.zeros((m, 12, 12))
-    P[:, :6, :6] = C[0]
-    P[:, 6:, 6:] = 1e4 * np.eye(6)
-    ll = np.zeros(m)
+    ll = np.zeros(len(q_w))
     Pss, Psv, Pvs, Pvv = P[:, :6, :6], P[:, :6, 6:], P[:, 6:, :6], P[:, 6:, 6:]
     for k in range(1, len(t)):
         dt = t[k] - t[k - 1]
@@ -217,14 +227,8 @@ def jerk_log_likelihood(
     m^2 s^-5). Priors, gate and return as :func:`log_likelihood`; the twist rate
     starts with a broad prior too (100 rad/s^2, m/s^2).
     """
-    m = len(q_w)
-    q = np.concatenate((np.repeat(q_w[:, None], 3, 1), np.repeat(q_v[:, None], 3, 1)), axis=1)
-    x = np.zeros((m, 18))
-    x[:, :6] = s[0]
-    P = np.zeros((m, 18, 18))
-    P[:, :6, :6] = C[0]
-    P[:, 6:, 6:] = 1e4 * np.eye(12)
-    ll = np.zeros(m)
+    q, x, P = _initial_state(s, C, q_w, q_v, 18)
+    ll = np.zeros(len(q_w))
     eye = np.eye(6)
     for k in range(1, len(t)):
         dt = t[k] - t[k - 1]
