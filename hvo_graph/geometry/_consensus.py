@@ -28,54 +28,48 @@ from __future__ import annotations
 import numpy as np
 
 
-def _hartley(xy: np.ndarray) -> np.ndarray:
-    """(..., 3, 3) similarity moving the centroid of (..., N, 2) points to 0 and their mean
-    distance to sqrt(2) (coinciding points: scale 1, the system is then degenerate)."""
-    c = xy.mean(axis=-2)
-    mean_dist = np.linalg.norm(xy - c[..., None, :], axis=-1).mean(axis=-1)
-    s = np.sqrt(2.0) / np.where(mean_dist > 0.0, mean_dist, 1.0)
-    T = np.zeros((*s.shape, 3, 3))
-    T[..., 0, 0] = T[..., 1, 1] = s
-    T[..., 0, 2] = -s * c[..., 0]
-    T[..., 1, 2] = -s * c[..., 1]
-    T[..., 2, 2] = 1.0
-    return T
-
-
 def deleted_distances(m_ref: np.ndarray, m_cur: np.ndarray) -> np.ndarray:
     """(F, N) each point's transfer distance ||m - pi(H m*)|| from the homography H
-    fitted to the other points (first order, see the module docstring); inf where
-    the point has no spare (leverage 1) or the fit sends it to infinity."""
+    fitted to the other points (first order, see the module docstring); inf or nan
+    where the point has no spare (leverage 1) or the fit sends it to infinity.
+
+    Written for few numpy calls: the front end also calls it one frame at a time.
+    """
     F, N = m_cur.shape[:2]
-    m_ref = np.broadcast_to(m_ref, m_cur.shape)
-    T_ref, T_cur = _hartley(m_ref[..., :2]), _hartley(m_cur[..., :2])
-    a = m_ref @ np.swapaxes(T_ref, -1, -2)
-    b = m_cur @ np.swapaxes(T_cur, -1, -2)
+    # Hartley normalization of both point sets at once: centroid 0, mean distance sqrt(2).
+    xy = np.empty((2, F, N, 2))
+    xy[0] = m_ref[..., :2]
+    xy[1] = m_cur[..., :2]
+    xy -= xy.mean(axis=2, keepdims=True)
+    scale = np.sqrt(2.0) / np.sqrt(np.einsum("sfni,sfni->sfn", xy, xy)).mean(axis=2)
+    xy *= scale[..., None, None]
+    a = np.ones((F, N, 3))
+    a[..., :2] = xy[0]
+    bx, by = xy[1, ..., 0:1], xy[1, ..., 1:2]
     A = np.zeros((F, N, 2, 9))  # rows x and y of b x (H a) = 0 for h = H.ravel()
     A[:, :, 0, 3:6] = -a
-    A[:, :, 0, 6:9] = b[..., 1:2] * a
+    A[:, :, 0, 6:9] = by * a
     A[:, :, 1, 0:3] = a
-    A[:, :, 1, 6:9] = -b[..., 0:1] * a
+    A[:, :, 1, 6:9] = -bx * a
     A = A.reshape(F, 2 * N, 9)
-    U, _, Vt = np.linalg.svd(A, full_matrices=2 * N < 9)
-    h = Vt[:, -1]
-    e = (A @ h[..., None]).reshape(F, N, 2)
-    U8 = U[..., :8].reshape(F, N, 2, 8)
-    P = U8 @ np.swapaxes(U8, -1, -2)  # (F, N, 2, 2) blocks of the hat matrix
-    p, q, r = 1.0 - P[..., 0, 0], -P[..., 0, 1], 1.0 - P[..., 1, 1]
-    det = p * r - q * q
-    spare = det > 1e-12  # leverage below 1: the others fix the homography
-    det = np.where(spare, det, 1.0)
-    e_del = np.stack((r * e[..., 0] - q * e[..., 1], p * e[..., 1] - q * e[..., 0]), -1)
-    e_norm = np.linalg.norm(e, axis=-1)
-    scale = np.linalg.norm(e_del, axis=-1) / (det * np.where(e_norm > 0.0, e_norm, 1.0))
-    scale = np.where(e_norm > 0.0, scale, 1.0 / np.sqrt(det))
-    H = np.linalg.solve(T_cur, h.reshape(F, 3, 3) @ T_ref)
-    x = m_ref @ np.swapaxes(H, -1, -2)
-    z = np.where(x[..., 2] == 0.0, np.nan, x[..., 2])
-    d = np.hypot(x[..., 0] / z - m_cur[..., 0], x[..., 1] / z - m_cur[..., 1])
-    d = np.where(spare & np.isfinite(d), d * scale, np.inf)
-    return d
+    with np.errstate(divide="ignore", invalid="ignore"):
+        # h and the 8 other right singular vectors from the 9 x 9 normal matrix (its
+        # eigenvectors; half the time of the SVD of A), the left ones as A V / sigma.
+        lam, V = np.linalg.eigh(np.swapaxes(A, 1, 2) @ A)
+        h = V[..., 0]
+        e = (A @ h[:, :, None]).reshape(F, N, 2)
+        U8 = (A @ (V[..., 1:] / np.sqrt(lam[:, None, 1:]))).reshape(F, N, 2, 8)
+        P = U8 @ np.swapaxes(U8, -1, -2)  # (F, N, 2, 2) blocks of the hat matrix
+        p, q, r = 1.0 - P[..., 0, 0], -P[..., 0, 1], 1.0 - P[..., 1, 1]
+        det = p * r - q * q
+        # ||(I - P_ii)^-1 e_i|| / ||e_i|| (the adjugate of I - P_ii over its determinant)
+        e0, e1 = e[..., 0], e[..., 1]
+        grow = np.sqrt(((r * e0 - q * e1) ** 2 + (p * e1 - q * e0) ** 2) / (e0 * e0 + e1 * e1))
+        grow = np.where(det > 1e-12, grow / det, np.inf)  # leverage 1: no spare point
+        x = a @ np.swapaxes(h.reshape(F, 3, 3), -1, -2)
+        d = np.hypot(x[..., 0] / x[..., 2] - bx[..., 0], x[..., 1] / x[..., 2] - by[..., 0])
+        # Back to m_cur's units; an exact fit (e_i = 0) has distance 0.
+        return np.where(d > 0.0, d * grow, 0.0) / scale[1][:, None]
 
 
 def all_inliers(m_ref: np.ndarray, m_cur: np.ndarray, threshold: float) -> np.ndarray:
