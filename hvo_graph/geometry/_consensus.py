@@ -68,8 +68,9 @@ def deleted_distances(m_ref: np.ndarray, m_cur: np.ndarray) -> np.ndarray:
         grow = np.where(det > 1e-12, grow / det, np.inf)  # leverage 1: no spare point
         x = a @ np.swapaxes(h.reshape(F, 3, 3), -1, -2)
         d = np.hypot(x[..., 0] / x[..., 2] - bx[..., 0], x[..., 1] / x[..., 2] - by[..., 0])
-        # Back to m_cur's units; an exact fit (e_i = 0) has distance 0.
-        return np.where(d > 0.0, d * grow, 0.0) / scale[1][:, None]
+        # Back to m_cur's units; a point fitted exactly (e_i = 0) but not alone has distance 0.
+        d = np.where((d == 0.0) & (det > 1e-12), 0.0, d * grow)
+        return d / scale[1][:, None]
 
 
 def all_inliers(m_ref: np.ndarray, m_cur: np.ndarray, threshold: float) -> np.ndarray:
