@@ -19,7 +19,6 @@ from hvo_graph.estimators.kalman_model import (
     _rotation,
     euler_rate_matrix,
 )
-from hvo_graph.estimators.noise_estimation import _lower_inverse
 from hvo_graph.frontend.velocity import flow_twist
 from hvo_graph.geometry._fit import PlaneTransfer, dlt, euclidean, known_normal_motion, plane_basis
 from hvo_graph.geometry._fit import retract as fast_retract
@@ -122,13 +121,6 @@ def test_kalman_euler_helpers_equal_the_rotation_functions():
         assert close(_rotation(r, p, w), R)
         assert close(_euler_angles(R), rotation_to_euler(R))
         assert close(_euler_rates(r, p, "x"), euler_rate_matrix(r, p))
-
-
-def test_lower_triangular_inverse_equals_numpy():
-    rng = np.random.default_rng(2)
-    A = rng.standard_normal((7, 6, 6))
-    L = np.linalg.cholesky(A @ A.transpose(0, 2, 1) + 6 * np.eye(6))
-    assert close(_lower_inverse(L), np.linalg.inv(L))
 
 
 def test_a_reused_pose_fit_equals_a_fresh_one():

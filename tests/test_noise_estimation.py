@@ -2,13 +2,17 @@
 
 from __future__ import annotations
 
+import math
+
 import gtsam
 import numpy as np
 import pytest
 
 from hvo_graph.estimators.noise_estimation import (
     MIN_SPECTRAL_DENSITY,
+    OUTLIER_GATE,
     estimate_process_noise,
+    jerk_log_likelihood,
     log_likelihood,
     unrolled_poses,
 )
@@ -113,3 +117,53 @@ def test_unrolled_poses_use_the_own_pixel_covariance_and_compose_keyframes():
     np.testing.assert_allclose(C[0], total - shared)
     np.testing.assert_allclose(s[1], gtsam.Pose3.Logmap(A))
     np.testing.assert_allclose(s[2] - s[1], gtsam.Pose3.Logmap(B), atol=1e-12)
+
+
+def textbook_log_likelihood(t, s, C, q_w, q_v, gate, order):
+    """One pair, the Kalman filter as written in the textbooks (full matrices, numpy's
+    solve and slogdet): the reference for the lockstep filter of the module."""
+    n = 6 * order
+    x, P = np.zeros(n), np.zeros((n, n))
+    x[:6], P[:6, :6], P[6:, 6:] = s[0], C[0], 1e4 * np.eye(n - 6)
+    H = np.hstack((np.eye(6), np.zeros((6, n - 6))))
+    q = np.diag([q_w] * 3 + [q_v] * 3)
+    total = 0.0
+    for k in range(1, len(t)):
+        dt = t[k] - t[k - 1]
+        # F = exp(A dt), Q_k = int_0^dt exp(A u) e e^T exp(A u)^T du (A: the shift matrix)
+        f = np.array([[1.0, dt, dt**2 / 2], [0.0, 1.0, dt], [0.0, 0.0, 1.0]])[:order, :order]
+        powers = 2 * order - 1 - np.add.outer(np.arange(order), np.arange(order))
+        scale = np.array([math.factorial(order - 1 - i) for i in range(order)])
+        u = dt**powers / (powers * np.outer(scale, scale))
+        F = np.kron(f, np.eye(6))
+        x, P = F @ x, F @ P @ F.T + np.kron(u, q)
+        y, S = s[k] - H @ x, H @ P @ H.T + C[k]
+        d2 = y @ np.linalg.solve(S, y)
+        total -= 0.5 * (min(d2, gate) + np.linalg.slogdet(S)[1] + 6 * np.log(2 * np.pi))
+        if d2 <= gate:
+            gain = P @ H.T @ np.linalg.inv(S)
+            x, P = x + gain @ y, P - gain @ H @ P
+    return total
+
+
+@pytest.mark.parametrize(("likelihood", "order"), [(log_likelihood, 2), (jerk_log_likelihood, 3)])
+def test_the_lockstep_filter_equals_the_textbook_one_pair_by_pair(likelihood, order):
+    """Irregular frame times, correlated pose noise and one gated outlier pose: every
+    pair's likelihood as the textbook filter's, and alone as among the others."""
+    rng = np.random.default_rng(4)
+    t = np.cumsum(rng.choice([1 / 30, 2 / 30], size=40))
+    s = np.cumsum(rng.normal(scale=0.01, size=(40, 6)), axis=0)
+    s[25] += 0.5  # an outlier: beyond the gate for every pair below
+    A = rng.normal(size=(40, 6, 6))
+    C = 1e-6 * (A @ A.transpose(0, 2, 1) + np.eye(6))
+    q_w, q_v = np.array([1e-3, 0.5, 20.0]), np.array([2.0, 1e-2, 0.3])
+    got = likelihood(t, s, C, q_w, q_v, OUTLIER_GATE)
+    expected = [
+        textbook_log_likelihood(t, s, C, a, b, OUTLIER_GATE, order)
+        for a, b in zip(q_w, q_v, strict=True)
+    ]
+    np.testing.assert_allclose(got, expected, rtol=1e-9)
+    alone = [likelihood(t, s, C, q_w[i : i + 1], q_v[i : i + 1], OUTLIER_GATE)[0] for i in range(3)]
+    np.testing.assert_allclose(alone, got, rtol=1e-14)
+    ungated = likelihood(t, s, C, q_w, q_v)
+    assert np.all(ungated < got - 100.0)  # the outlier's density, no longer capped at the gate

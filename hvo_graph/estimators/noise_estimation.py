@@ -164,51 +164,10 @@ def log_likelihood(
             outlier: it costs the gate (a bounded, Huber-like penalty) and does
             not update the state, so one bad pose cannot drive Q up.
     Returns:
-        (M,) log-likelihoods of s_1..K given s_0.
+        (M,) log-likelihoods of s_1..K given s_0; each pair's filter runs alone
+        (the other pairs change its value by rounding at most).
     """
-    q, x, P = _initial_state(s, C, q_w, q_v, 12)
-    Q = q[:, :, None] * np.eye(6)[None]
-    ll = np.zeros(len(q_w))
-    Pss, Psv, Pvs, Pvv = P[:, :6, :6], P[:, :6, 6:], P[:, 6:, :6], P[:, 6:, 6:]
-    for k in range(1, len(t)):
-        dt = t[k] - t[k - 1]
-        # predict (F = [[I, dt I], [0, I]]), block by block in place (P stays symmetric)
-        x[:, :6] += dt * x[:, 6:]
-        Pss += dt * (Psv + Pvs) + dt * dt * Pvv + Q * (dt**3 / 3)
-        Psv += dt * Pvv + Q * (dt**2 / 2)
-        Pvs[...] = Psv.transpose(0, 2, 1)
-        Pvv += Q * dt
-        ll += _pose_update(x, P, s[k], C[k], gate)
-    return ll
-
-
-def _pose_update(
-    x: np.ndarray, P: np.ndarray, z: np.ndarray, R: np.ndarray, gate: float
-) -> np.ndarray:
-    """Kalman update of M states (M, n) and covariances (M, n, n), in place, with the pose
-    z (6,) of covariance R (6, 6) measuring the first six components (H = [I 0]); returns
-    the (M,) log densities of the innovation (gated: beyond ``gate`` it costs the gate
-    and does not update)."""
-    # one Cholesky factor L of S; L^-1 by substitution
-    S = P[:, :6, :6] + R[None]
-    y = z[None] - x[:, :6]
-    L = np.linalg.cholesky(S)
-    L_inv = _lower_inverse(L)
-    w = np.einsum("mij,mj->mi", L_inv, y)
-    d2 = np.sum(w * w, axis=1)
-    log_density = -0.5 * (
-        np.minimum(d2, gate)
-        + 2.0 * np.log(np.diagonal(L, axis1=1, axis2=2)).sum(axis=1)
-        + 6.0 * np.log(2.0 * np.pi)
-    )
-    # gain P H^T S^-1, S^-1 = L^-T L^-1 (M, n, 6)
-    gain = (P[:, :, :6] @ np.transpose(L_inv, (0, 2, 1))) @ L_inv
-    gain[d2 > gate] = 0.0  # an outlier pose neither updates the state nor inflates Q
-    x += np.einsum("mij,mj->mi", gain, y)
-    P -= gain @ P[:, :6, :]
-    P += P.transpose(0, 2, 1).copy()
-    P *= 0.5
-    return log_density
+    return _kalman_log_likelihood(t, s, C, q_w, q_v, gate, order=2)
 
 
 def jerk_log_likelihood(
@@ -227,37 +186,126 @@ def jerk_log_likelihood(
     m^2 s^-5). Priors, gate and return as :func:`log_likelihood`; the twist rate
     starts with a broad prior too (100 rad/s^2, m/s^2).
     """
-    q, x, P = _initial_state(s, C, q_w, q_v, 18)
-    ll = np.zeros(len(q_w))
-    eye = np.eye(6)
+    return _kalman_log_likelihood(t, s, C, q_w, q_v, gate, order=3)
+
+
+#: Steps whose innovation terms are summed at once (bounds the filter's buffers).
+_BLOCK: int = 256
+
+
+def _kalman_log_likelihood(
+    t: np.ndarray,
+    s: np.ndarray,
+    C: np.ndarray,
+    q_w: np.ndarray,
+    q_v: np.ndarray,
+    gate: float,
+    order: int,
+) -> np.ndarray:
+    """The Kalman filter of :func:`log_likelihood` (order 2) and
+    :func:`jerk_log_likelihood` (order 3), n = 6 order states, M pairs in lockstep.
+
+    M is small (~50-150) and the filter runs K steps, so the cost is the number of
+    numpy calls per step, not arithmetic. Hence the layout: the pairs are the last
+    (contiguous) axis of every array, X = [P | x] (n, n + 1, M) holds covariance
+    and state together, and each step is ~40 calls over all pairs:
+
+    - predict: F [P | x] (block rows), then (F P) F^T (block columns), then Q_k
+      onto the diagonals of P's 6x6 blocks (Q_k = unit(dt) (x) diag(q));
+    - update (H = [I 0]): G = [S | E] with S = P_ss + C_k and E = [P_s. | x_s - z_k]
+      (6, n + 7, M); six pivots of Cholesky elimination on G's rows give L (S = L
+      L^T) on the diagonal and W = L^-1 E in E's place, then [P | x] -= W_P^T W
+      (one stacked matmul: the gain update P - P_s.^T S^-1 P_s. and x + K y at
+      once), d^2 = |L^-1 y|^2 and log det S = 2 sum log diag L.
+    """
+    q, x, P = _initial_state(s, C, q_w, q_v, 6 * order)
+    n, m = 6 * order, len(q)
+    X = np.empty((n, n + 1, m))
+    X[:, :n] = P.transpose(1, 2, 0)
+    X[:, n] = x.T
+    covariance = X[:, :n]
+    step = X.strides
+    # The diagonals of P's (order x order) 6x6 blocks, where Q_k goes: (order, order, 6, M).
+    diagonals = np.lib.stride_tricks.as_strided(
+        X,
+        shape=(order, order, 6, m),
+        strides=(6 * step[0], 6 * step[1], step[0] + step[1], step[2]),
+    )
+    G = np.empty((6, n + 7, m))
+    W = np.empty((m, 6, n + 1))  # L^-1 E, pairs first for the stacked matmul
+    update = np.empty((m, n, n + 1))
+    covariances = np.ascontiguousarray(C)[:, :, :, None]
+    measured = s[:, :, None]
+    noise_steps: dict[float, np.ndarray] = {}
+    ll = np.zeros(m)
+    block_L = np.empty((_BLOCK, 6, m))
+    block_d2 = np.empty((_BLOCK, m))
     for k in range(1, len(t)):
         dt = t[k] - t[k - 1]
-        F = np.kron(np.array([[1.0, dt, 0.5 * dt * dt], [0.0, 1.0, dt], [0.0, 0.0, 1.0]]), eye)
-        unit = np.array(
-            [
-                [dt**5 / 20.0, dt**4 / 8.0, dt**3 / 6.0],
-                [dt**4 / 8.0, dt**3 / 3.0, dt**2 / 2.0],
-                [dt**3 / 6.0, dt**2 / 2.0, dt],
-            ]
-        )
-        x = x @ F.T
-        P = F @ P @ F.T
-        P += np.kron(unit, eye)[None] * np.tile(q, 3)[:, None, :]  # Q_k = unit (x) diag(q)
-        ll += _pose_update(x, P, s[k], C[k], gate)
+        Q = noise_steps.get(dt)
+        if Q is None:
+            Q = noise_steps[dt] = _unit_noise(dt, order)[:, :, None, None] * q.T[None, None]
+        _predict(X, dt, order)
+        diagonals += Q
+        np.add(X[:6, :6], covariances[k], out=G[:, :6])
+        G[:, 6:] = X[:6]
+        G[:, -1] -= measured[k]
+        i = (k - 1) % _BLOCK
+        L = block_L[i]
+        with np.errstate(invalid="ignore"):  # S indefinite by rounding: that pair's NaN
+            for j in range(6):
+                np.sqrt(G[j, j], out=L[j])
+                G[j, j:] /= L[j]
+                if j < 5:
+                    G[j + 1 :, j + 1 :] -= G[j, j + 1 : 6, None] * G[j, None, j + 1 :]
+        W.transpose(1, 2, 0)[...] = G[:, 6:]
+        d2 = np.einsum("mi,mi->m", W[:, :, n], W[:, :, n], out=block_d2[i])
+        outliers = d2 > gate  # (a pair gone NaN is not one: the others are unaffected)
+        if outliers.any():
+            W[outliers] = 0.0  # an outlier pose neither updates the state nor inflates Q
+        np.matmul(W[:, :, :n].transpose(0, 2, 1), W, out=update)
+        X -= update.transpose(1, 2, 0)
+        # kept symmetric: the predict's rounding leaves P asymmetric, and in the 18-state
+        # model that asymmetry grows (numpy buffers the overlapping transpose)
+        covariance += covariance.transpose(1, 0, 2)
+        covariance *= 0.5
+        if i == _BLOCK - 1 or k == len(t) - 1:
+            ll += _log_densities(block_L[: i + 1], block_d2[: i + 1], gate)
     return ll
 
 
-def _lower_inverse(L: np.ndarray) -> np.ndarray:
-    """(M, n, n) inverses of lower-triangular L (M, n, n) by forward substitution: n
-    vectorised steps instead of M calls of LAPACK (M small systems per time step)."""
-    n = L.shape[1]
-    inv = np.zeros_like(L)
-    diagonal = 1.0 / np.diagonal(L, axis1=1, axis2=2)  # (M, n)
-    for i in range(n):
-        row = -np.einsum("mj,mjk->mk", L[:, i, :i], inv[:, :i, :])  # zeros for i = 0
-        row[:, i] = 1.0
-        inv[:, i, :] = row * diagonal[:, i : i + 1]
-    return inv
+def _predict(X: np.ndarray, dt: float, order: int) -> None:
+    """[P | x] <- F [P | x], then P <- P F^T, in place (F: the model's transition)."""
+    n = 6 * order
+    if order == 2:
+        X[:6] += dt * X[6:]
+        X[:, :6] += dt * X[:, 6:12]
+        return
+    X[:6] += dt * X[6:12] + (0.5 * dt * dt) * X[12:]
+    X[6:12] += dt * X[12:]
+    X[:, :6] += dt * X[:, 6:12] + (0.5 * dt * dt) * X[:, 12:n]
+    X[:, 6:12] += dt * X[:, 12:n]
+
+
+def _unit_noise(dt: float, order: int) -> np.ndarray:
+    """The (order, order) discrete noise of unit spectral density over dt."""
+    if order == 2:
+        return np.array([[dt**3 / 3.0, dt**2 / 2.0], [dt**2 / 2.0, dt]])
+    return np.array(
+        [
+            [dt**5 / 20.0, dt**4 / 8.0, dt**3 / 6.0],
+            [dt**4 / 8.0, dt**3 / 3.0, dt**2 / 2.0],
+            [dt**3 / 6.0, dt**2 / 2.0, dt],
+        ]
+    )
+
+
+def _log_densities(L: np.ndarray, d2: np.ndarray, gate: float) -> np.ndarray:
+    """(M,) sum over steps of the innovations' log densities, from the diagonals of their
+    Cholesky factors L (B, 6, M) and squared Mahalanobis norms d2 (B, M) (gated: beyond
+    ``gate`` an innovation costs the gate)."""
+    terms = np.minimum(d2, gate) + 2.0 * np.log(L).sum(axis=1) + 6.0 * np.log(2.0 * np.pi)
+    return -0.5 * terms.sum(axis=0)
 
 
 def estimate_process_noise(
@@ -307,6 +355,9 @@ def _fit(
     for _ in range(refinements + 1):
         A, B = np.meshgrid(axis_w, axis_v, indexing="ij")
         ll = likelihood(t, s, C, 10.0 ** A.ravel(), 10.0 ** B.ravel(), OUTLIER_GATE)
+        # At extreme densities (~1e4 jerk) the filter's covariance can lose definiteness
+        # by rounding (NaN): such a pair is far from the optimum, ruled out.
+        ll = np.where(np.isnan(ll), -np.inf, ll)
         i = int(np.argmax(ll))
         best, best_ll = (float(A.ravel()[i]), float(B.ravel()[i])), float(ll[i])
         step /= 3.0
@@ -333,14 +384,12 @@ def _upper_interval_ends(
     trials = [np.clip(best[axis] + steps, None, hi) for axis in (0, 1)]
     others = [np.full(len(steps), best[1 - axis]) for axis in (0, 1)]
     q_w, q_v = [trials[0], others[1]], [others[0], trials[1]]
-    if likelihood is log_likelihood:
-        # Both axes in one pass over the poses: the WNA filter computes each pair's row
-        # alone (the same numbers for any number of pairs); the WNJ's stacked products not.
-        q = (10.0 ** np.concatenate(q_w), 10.0 ** np.concatenate(q_v))
-        both = likelihood(t, s, C, *q, OUTLIER_GATE)
-        lls = np.split(both, 2)
-    else:
-        lls = [likelihood(t, s, C, 10.0 ** q_w[a], 10.0 ** q_v[a], OUTLIER_GATE) for a in (0, 1)]
+    # Both axes in one pass over the poses (each pair's filter runs alone), each pair once:
+    # the trials clipped at the upper bound repeat, and step 0 of both axes is the optimum.
+    pairs = np.stack((np.concatenate(q_w), np.concatenate(q_v)), axis=1)
+    unique, index = np.unique(pairs, axis=0, return_inverse=True)
+    both = likelihood(t, s, C, 10.0 ** unique[:, 0], 10.0 ** unique[:, 1], OUTLIER_GATE)
+    lls = np.split(both[index.ravel()], 2)
     for axis, ll in enumerate(lls):
         inside = np.flatnonzero(ll >= best_ll - INTERVAL_DROP)
         ends.append(float(trials[axis][inside.max()]) if inside.size else best[axis])
