@@ -51,6 +51,9 @@ __all__ = [
 ]
 
 
+_EYE6 = np.eye(6)
+
+
 def log_between(
     pose_prev: gtsam.Pose3, pose: gtsam.Pose3
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -124,7 +127,7 @@ def motion_factor(
             f"noise: expected a 6-dimensional noise model, got dimension {noise.dim()}"
         )
     half_dt = 0.5 * dt
-    d_twist = -half_dt * np.eye(6)
+    d_twist = -half_dt * _EYE6
     kp, kc, vp, vc = pose_prev_key, pose_key, twist_prev_key, twist_key
 
     # Kept lean: this runs on every (re)linearization.

@@ -410,13 +410,14 @@ class TightSmoother(Estimator):
         """Count the observations whose whitened residual fails the chi^2 gate."""
         R = pose.rotation().matrix()
         p = np.asarray(pose.translation(), dtype=float)
-        for track, key, m in added:
-            c = R.T @ (self._point(key) - p)
-            if c[2] > 1e-9:
-                r = (m - c[:2] / c[2]) / sigma
-                chi2 = float(r @ r)
-            else:
-                chi2 = math.inf
+        # all observations at once: c = R^T (L - p) per row, in the camera frame
+        c = (np.array([self._point(key) for _, key, _ in added]) - p) @ R
+        m = np.array([m for _, _, m in added])
+        ahead = c[:, 2] > 1e-9
+        with np.errstate(divide="ignore", invalid="ignore"):  # behind the camera: inf
+            r = (m - c[:, :2] / c[:, 2:]) / sigma
+        chi2s = np.where(ahead, np.einsum("ij,ij->i", r, r), math.inf).tolist()
+        for (track, key, _), chi2 in zip(added, chi2s, strict=True):
             if chi2 <= self.reject_chi2:
                 self._strikes.pop(track, None)
                 continue
