@@ -166,12 +166,21 @@ class WindowIsam2Backend(Backend):
         older = gtsam.NonlinearFactorGraph()
         newer = gtsam.NonlinearFactorGraph()
         carried = gtsam.NonlinearFactorGraph()  # older frames' factors on kept keys only
-        for graph in [self._prior, *(g for _, g in old), *(g for _, g in kept)]:
+        kept_graphs = []  # each kept frame's own factors on kept keys only
+        # One pass over the factors, in order: each goes to the marginal (touching a
+        # dropped key) or stays (newer; and carried, e.g. a landmark's plane factor, or
+        # back into its kept frame's graph).
+        for j, graph in enumerate([self._prior, *(g for _, g in old), *(g for _, g in kept)]):
+            own = carried if j <= len(old) else gtsam.NonlinearFactorGraph()
             for n in range(graph.size()):
                 factor = graph.at(n)
-                (older if dropped.intersection(factor.keys()) else newer).add(factor)
-        for graph in [self._prior, *(g for _, g in old)]:
-            carried.push_back(_without(graph, dropped))  # e.g. a landmark's plane factor
+                if dropped.intersection(factor.keys()):
+                    older.add(factor)
+                else:
+                    newer.add(factor)
+                    own.add(factor)
+            if j > len(old):
+                kept_graphs.append(own)
         kept_keys = set(newer.keyVector())
         # Frames in time order, then the landmarks no kept frame sees: the chain is
         # eliminated with fill-in only on the landmarks (key order interleaves badly).
@@ -204,7 +213,7 @@ class WindowIsam2Backend(Backend):
         start.push_back(newer)  # holds the carried factors too
         self.isam.update(start, values)
         # The frames' own factors are kept only for the next rebuild's split.
-        self._frames = [(i, _without(g, dropped)) for i, g in kept]
+        self._frames = [(i, g) for (i, _), g in zip(kept, kept_graphs, strict=True)]
 
     def drop_landmarks(self, keys: set[int]) -> None:
         """Leave the landmarks ``keys`` (rejected tracks) and all their factors out of the
@@ -257,16 +266,6 @@ def drop_landmarks(backend: Backend, keys: set[int]) -> None:
             backend.initial.erase(key)
     backend.graph = kept
     backend._result = None
-
-
-def _without(graph: gtsam.NonlinearFactorGraph, dropped: set[int]) -> gtsam.NonlinearFactorGraph:
-    """The factors of ``graph`` touching none of ``dropped`` (those went into the prior)."""
-    out = gtsam.NonlinearFactorGraph()
-    for n in range(graph.size()):
-        factor = graph.at(n)
-        if not dropped.intersection(factor.keys()):
-            out.add(factor)
-    return out
 
 
 def _value(source: gtsam.Values, key: int) -> object:
