@@ -245,6 +245,8 @@ def _kalman_log_likelihood(
         dt = t[k] - t[k - 1]
         Q = noise_steps.get(dt)
         if Q is None:
+            if len(noise_steps) > 64:  # irregular frame times: keep the cache small
+                noise_steps.clear()
             Q = noise_steps[dt] = _unit_noise(dt, order)[:, :, None, None] * q.T[None, None]
         _predict(X, dt, order)
         diagonals += Q
