@@ -195,3 +195,39 @@ def test_a_long_tight_run_holds_little_per_frame():
     assert per_frame[1] < 1500, per_frame
     held = tight.backend.isam.getLinearizationPoint().size()
     assert held <= 2 * (2 * tight.backend.window + 1) + 4  # the online window only
+
+
+def test_the_first_frames_pixels_take_a_gaussian_loss(paper_run):
+    """Only the first frame's pixels fix the scale and the place along the plane of
+    everything after it (a plane-keeping similarity of the later frames and the landmarks
+    changes no later projection): they are never reweighted; every later pixel is."""
+    scenario, frames = paper_run
+    tight = streamed(frames[:40])
+    store = tight.backend.store
+    first, later = store.graph(0, 1)[0], store.graph(1, 2)[0]
+
+    def projections(graph):
+        factors = [graph.at(i) for i in range(graph.size())]
+        return [f for f in factors if isinstance(f, gtsam.GenericProjectionFactorCal3_S2)]
+
+    assert len(projections(first)) == 4 and len(projections(later)) == 4
+    for factor in projections(first):
+        assert not isinstance(factor.noiseModel(), gtsam.noiseModel.Robust)
+        np.testing.assert_allclose(factor.noiseModel().sigmas(), frames[0].points.sigma)
+    for factor in projections(later):
+        assert isinstance(factor.noiseModel(), gtsam.noiseModel.Robust)
+    # The same in the online problem.
+    online = tight.backend.online_graph()
+    anchored = [
+        f
+        for f in projections(online)
+        if X(0) in f.keys() and not isinstance(f.noiseModel(), gtsam.noiseModel.Robust)
+    ]
+    assert len(anchored) == 4  # 40 frames: the window is not rebuilt yet
+    # The landmarks' spread is the ground truth's (the scale the first frame holds).
+    landmarks = np.array([tight.backend.values().atPoint3(k) for k in store.landmarks])
+    truth = scenario.points_world
+    spread = np.linalg.norm(landmarks - landmarks.mean(axis=0), axis=1).mean()
+    assert spread == pytest.approx(
+        np.linalg.norm(truth - truth.mean(axis=0), axis=1).mean(), rel=0.01
+    )

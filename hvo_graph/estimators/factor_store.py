@@ -23,9 +23,9 @@ iterates): 1.1 GiB at 100,000 frames. Here
   a second sweep only confirms the first. Peak memory: one chunk's solve.
 
 The tightly coupled smoother's graph adds plane landmarks L(j) (``Point3``) that
-frames far apart observe: its projection factors are rows of 5 numbers (frame,
-landmark, image point m, sigma), and it is solved by Levenberg-Marquardt with each
-linear system solved chunk by chunk (:mod:`~hvo_graph.estimators.chunked_lm`).
+frames far apart observe: its projection factors are rows of 6 numbers (frame,
+landmark, image point m, sigma, robust or not), and it is solved by Levenberg-Marquardt
+with each linear system solved chunk by chunk (:mod:`~hvo_graph.estimators.chunked_lm`).
 """
 
 from __future__ import annotations
@@ -124,7 +124,7 @@ class FactorStore:
         self._motion_factors = MotionFactors()
         #: Whether any frame has a twist rate A(k) (the white-noise-jerk model).
         self.rates = False
-        self._observation = _Rows(4)  # position of the frame, m (2), sigma
+        self._observation = _Rows(5)  # position of the frame, m (2), sigma, robust (1/0)
         self._observed = _Rows(1, np.int64)  # landmark key of each observation
         #: Landmark key -> its own factors (the plane prior), for the landmarks kept.
         self.landmarks: dict[int, list[gtsam.NonlinearFactor]] = {}
@@ -175,15 +175,16 @@ class FactorStore:
         if self.keeps:
             self.landmarks.setdefault(key, []).append(factor)
 
-    def add_observations(self, keys: Sequence[int], m: np.ndarray, sigma: float) -> None:
-        """Projection factors of the landmarks ``keys`` in the newest frame: normalized
-        image points m (N, 2) with isotropic noise ``sigma`` (``pixel_noise(sigma)``)."""
+    def add_observations(
+        self, keys: Sequence[int], m: np.ndarray, sigma: float, *, robust: bool = True
+    ) -> None:
+        """Projection factors of the landmarks ``keys`` in the newest frame: normalized image
+        points m (N, 2), isotropic noise ``sigma`` (``pixel_noise(sigma)``; Gaussian if not
+        ``robust``)."""
         if not self.keeps or not len(keys):
             return
-        rows = np.empty((len(keys), 4))
-        rows[:, 0] = len(self) - 1
-        rows[:, 1:3] = m
-        rows[:, 3] = sigma
+        rows = np.empty((len(keys), 5))
+        rows[:, 0], rows[:, 1:3], rows[:, 3], rows[:, 4] = len(self) - 1, m, sigma, robust
         self._observation.extend(rows)
         self._observed.extend(np.asarray(keys, dtype=np.int64)[:, None])
 
@@ -272,12 +273,12 @@ class FactorStore:
             lo, hi = min(lo, int(span[i, 0])), max(hi, int(span[i, 1]) + 1)
         rows, keys = self._observations(first, stop)
         poses = (np.uint64(X(0)) + indices[rows[:, 0].astype(np.int64)].astype(np.uint64)).tolist()
-        noise = {s: self.pixel_noise(s) for s in set(rows[:, 3].tolist())}  # type: ignore[misc]
-        for m, sigma, pose, key in zip(
-            rows[:, 1:3], rows[:, 3].tolist(), poses, keys.tolist(), strict=True
-        ):
+        kinds = list(zip(rows[:, 3].tolist(), rows[:, 4].tolist(), strict=True))
+        plain = gtsam.noiseModel.Isotropic.Sigma
+        noise = {(s, r): self.pixel_noise(s) if r else plain(2, s) for s, r in set(kinds)}  # type: ignore[misc]
+        for m, kind, pose, key in zip(rows[:, 1:3], kinds, poses, keys.tolist(), strict=True):
             graph.add(
-                gtsam.GenericProjectionFactorCal3_S2(m, noise[sigma], pose, key, UNIT_CALIBRATION)
+                gtsam.GenericProjectionFactorCal3_S2(m, noise[kind], pose, key, UNIT_CALIBRATION)
             )
         return graph, range(lo, hi)
 

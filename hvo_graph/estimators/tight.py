@@ -23,7 +23,9 @@ track comes back after its landmark left the online problem). Factors:
   front end (:class:`~hvo_graph.types.PointObservations`), so every camera model
   (radial-tangential, fisheye) goes through :class:`~hvo_graph.geometry.camera.CameraModel`;
   isotropic noise of the frame's ``sigma`` (pixel sigma over the mean focal length)
-  under a Huber loss (threshold ``robust_threshold`` on the whitened residual);
+  under a Huber loss (threshold ``robust_threshold`` on the whitened residual), but
+  Gaussian in the first frame: its pixels alone fix the scale and place along the plane
+  of all later frames, against the motion model's pull (docs/smoother.md);
 - motion and twist random walk: the same factors and process noise as the homography
   graph (:func:`~hvo_graph.estimators.factors.motion_factor`, Q fitted by maximum
   likelihood on the front end's H_d poses unless ``acceleration_sigma`` is given);
@@ -320,7 +322,8 @@ class TightSmoother(Estimator):
     ) -> list[tuple[int, int, np.ndarray]]:
         """Projection factors of the frame's points (new landmarks as needed); returns
         (track id, landmark key, m) of each observation added."""
-        noise = self._pixel_noise_model(float(points.sigma))
+        anchor = not self._indices  # the first frame: Gaussian (module docstring)
+        noise = self._pixel_noise_model(float(points.sigma), robust=not anchor)
         normal = np.asarray(points.normal, dtype=float)
         distance = float(points.distance)
         self._plane = (normal, distance)
@@ -344,7 +347,9 @@ class TightSmoother(Estimator):
             self.counts["observations"] += 1
             added.append((track, key, m))
         m = np.array([m for _, _, m in added])  # the final solve's copy, as numbers:
-        self.backend.store.add_observations([key for _, key, _ in added], m, float(points.sigma))
+        self.backend.store.add_observations(
+            [key for _, key, _ in added], m, float(points.sigma), robust=not anchor
+        )
         return added
 
     def _admitted(self, ids: np.ndarray, m: np.ndarray) -> tuple[list[int], np.ndarray]:
@@ -364,15 +369,14 @@ class TightSmoother(Estimator):
         kept.sort()
         return [tracks[i] for i in kept], m[kept]
 
-    def _pixel_noise_model(self, sigma: float) -> gtsam.noiseModel.Base:
-        model = self._pixel_noise.get(sigma)
+    def _pixel_noise_model(self, sigma: float, robust: bool = True) -> gtsam.noiseModel.Base:
+        sigma = as_number(sigma, "points.sigma", above=0.0)
+        model = self._pixel_noise.get(sigma) if robust else None
         if model is None:
-            sigma = as_number(sigma, "points.sigma", above=0.0)
-            model = gtsam.noiseModel.Robust.Create(
-                gtsam.noiseModel.mEstimator.Huber.Create(self.robust_threshold),
-                gtsam.noiseModel.Isotropic.Sigma(2, sigma),
-            )
-            self._pixel_noise[sigma] = model
+            model = gtsam.noiseModel.Isotropic.Sigma(2, sigma)
+            if robust:
+                huber = gtsam.noiseModel.mEstimator.Huber.Create(self.robust_threshold)
+                model = self._pixel_noise[sigma] = gtsam.noiseModel.Robust.Create(huber, model)
         return model
 
     def _plane_model(self, normal: np.ndarray) -> gtsam.noiseModel.Base:
