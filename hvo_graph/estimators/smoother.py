@@ -50,7 +50,7 @@ from hvo_graph.estimators.factors import (
     keyframe_pose_factor,
     measurement_noise,
 )
-from hvo_graph.estimators.measurement_checks import CheckedFrame, checked_frame, poses_span
+from hvo_graph.estimators.measurement_checks import CheckedFrame, Screened, poses_span
 from hvo_graph.estimators.motion_model import MotionFactors, check_motion_model, twist_keys
 from hvo_graph.estimators.noise_estimation import ProcessNoiseSchedule
 from hvo_graph.estimators.process_noise import DEFAULT_ACCELERATION_SIGMA
@@ -232,6 +232,7 @@ class FactorGraphSmoother(Estimator):
         self._known = SortedIndices(self._indices)
         self._pose = gtsam.Pose3()  # latest online estimate (for predictions)
         self._twist = _ZERO6
+        self._screened: tuple[FrameMeasurement, Screened | None] | None = None  # from run()
 
         #: The solver's back end (:mod:`hvo_graph.estimators.solvers`).
         self.backend: Backend = make_backend(
@@ -255,25 +256,25 @@ class FactorGraphSmoother(Estimator):
         return self.process_noise.model
 
     def run(self, frames: Iterable[FrameMeasurement]) -> Trajectory:
-        """Fuse a whole sequence; "auto" process noise is fitted on all of it first."""
+        """Fuse a whole sequence; "auto" process noise is fitted on all of it first. The
+        frames' numbers are checked a block at a time (:func:`.screen_frames`)."""
         frames = frames if isinstance(frames, Sequence) else list(frames)  # a table: as is
         if not self._indices:
             self.process_noise.fit_all(frames)
             self.acceleration_sigma = self.process_noise.sigma
-        return super().run(frames)
-
-    # -- per frame --------------------------------------------------------------------------
+        for screened in measurement_checks.screened(frames, self.shared_reference_noise):
+            self._screened = screened
+            self.update(screened[0])
+        return self.trajectory()
 
     def _checked_frame(self, frame: FrameMeasurement) -> CheckedFrame:
         """(k, t, checked pose, checked twist with its nodes): every check before any change."""
-        return checked_frame(
-            frame,
-            self._times,
-            self._indices,
-            self.backend.in_graph,
-            self.lag,
-            known=self._known,
-            split_reference=self.shared_reference_noise,
+        given, self._screened = self._screened, None  # streamed frames: checked here alone
+        screened = given[1] if given is not None and given[0] is frame else None
+        state = (self._times, self._indices, self.backend.in_graph, self.lag)
+        split = self.shared_reference_noise
+        return measurement_checks.checked_frame(
+            frame, *state, known=self._known, split_reference=split, screened=screened
         )
 
     def _add_pose_factor(
@@ -281,8 +282,7 @@ class FactorGraphSmoother(Estimator):
         graph: gtsam.NonlinearFactorGraph,
         k: int,
         pose: PoseMeasurement,
-        pose_meas: tuple[gtsam.Pose3, np.ndarray, int]
-        | tuple[gtsam.Pose3, np.ndarray, int, np.ndarray],
+        pose_meas: tuple,  # (measured, covariance, reference[, shared covariance])
     ) -> gtsam.Pose3:
         """The H_d factor of frame k (prior, between, or keyframe between); its pose value."""
         measured, cov, ref = pose_meas[:3]
