@@ -126,9 +126,23 @@ def motion_factor(
         raise InputError(
             f"noise: expected a 6-dimensional noise model, got dimension {noise.dim()}"
         )
+    return _motion_factor((pose_prev_key, pose_key, twist_prev_key, twist_key), dt, noise)
+
+
+_TWIST_JACOBIANS: dict[float, np.ndarray] = {}  # -dt/2 I_6 by dt (read only)
+
+
+def _motion_factor(
+    keys: tuple[int, int, int, int], dt: float, noise: gtsam.noiseModel.Base
+) -> gtsam.CustomFactor:
+    """:func:`motion_factor` without the argument checks (dt > 0 and a 6-D noise given)."""
     half_dt = 0.5 * dt
-    d_twist = -half_dt * _EYE6
-    kp, kc, vp, vc = pose_prev_key, pose_key, twist_prev_key, twist_key
+    d_twist = _TWIST_JACOBIANS.get(dt)
+    if d_twist is None:
+        if len(_TWIST_JACOBIANS) > 64:  # irregular frame times: keep the cache small
+            _TWIST_JACOBIANS.clear()
+        d_twist = _TWIST_JACOBIANS[dt] = -half_dt * _EYE6
+    kp, kc, vp, vc = keys
 
     # Kept lean: this runs on every (re)linearization.
     def error(_: gtsam.CustomFactor, values: gtsam.Values, H: list | None) -> np.ndarray:
@@ -140,7 +154,7 @@ def motion_factor(
         H[3] = d_twist
         return phi - mean
 
-    return gtsam.CustomFactor(noise, [kp, kc, vp, vc], error)
+    return gtsam.CustomFactor(noise, list(keys), error)
 
 
 def mean_velocity_residual(

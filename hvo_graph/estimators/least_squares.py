@@ -50,9 +50,11 @@ def levenberg_marquardt(
     error = graph.error(values)
     zeros = values.zeroVectors()  # once: it is O(number of variables)
     dims = [(key, zeros.at(key).size) for key in values.keys()]
-    units = {d: gtsam.noiseModel.Unit.Create(d) for _, d in dims}
-    held = {d: gtsam.noiseModel.Constrained.All(d) for _, d in dims}
-    eyes = {d: np.eye(d) for _, d in dims}
+    sizes = {d for _, d in dims}  # a few: not one model per variable
+    units = {d: gtsam.noiseModel.Unit.Create(d) for d in sizes}
+    held = {d: gtsam.noiseModel.Constrained.All(d) for d in sizes}
+    eyes = {d: np.eye(d) for d in sizes}
+    zero = {d: np.zeros(d) for d in sizes}
     fixed = set(fixed)
     lam = initial_lambda
     for iteration in range(1, max_iterations + 1):
@@ -61,11 +63,12 @@ def levenberg_marquardt(
             damped = gtsam.GaussianFactorGraph()
             damped.push_back(linear)
             root = math.sqrt(lam)
+            damping = {d: root * eyes[d] for d in sizes}
             for key, d in dims:
                 if key in fixed:
-                    damped.add(key, eyes[d], np.zeros(d), held[d])
+                    damped.add(key, eyes[d], zero[d], held[d])
                 else:
-                    damped.add(key, root * eyes[d], np.zeros(d), units[d])
+                    damped.add(key, damping[d], zero[d], units[d])
             candidate = values.retract(damped.optimize())
             candidate_error = graph.error(candidate)
             if candidate_error <= error:

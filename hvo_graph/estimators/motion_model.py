@@ -21,7 +21,7 @@ from gtsam.symbol_shorthand import A, V, X
 
 from hvo_graph.errors import InputError
 from hvo_graph.estimators.choices import MOTION_MODEL_CHOICES
-from hvo_graph.estimators.factors import motion_factor
+from hvo_graph.estimators.factors import _motion_factor
 from hvo_graph.estimators.jerk import JerkNoise, jerk_motion_factor, twist_rate_factor
 from hvo_graph.estimators.process_noise import MotionNoise
 
@@ -65,7 +65,8 @@ class MotionFactors:
         if model == "wna":
             motion_noise, walk_noise = noise(dt)  # type: ignore[misc]
             return [
-                motion_factor(X(previous), X(k), V(previous), V(k), dt, motion_noise),
+                # dt > 0 (frames in time order) and the noise is 6-D: built unchecked.
+                _motion_factor((X(previous), X(k), V(previous), V(k)), dt, motion_noise),
                 gtsam.BetweenFactorVector(V(previous), V(k), _ZERO6, walk_noise),
             ]
         keys = (X(previous), X(k), V(previous), V(k), A(previous), A(k))
