@@ -124,6 +124,14 @@ class _Covariances:
         out[_UPPER] = out[_LOWER] = self.values[k]
         return out
 
+    def unpacked(self) -> np.ndarray:
+        """(n, 6, 6) every matrix (for iterating a block: one call, not one per record)."""
+        if not self.symmetric:
+            return self.values
+        out = np.empty((len(self.values), 6, 6))
+        out[:, _UPPER[0], _UPPER[1]] = out[:, _LOWER[0], _LOWER[1]] = self.values
+        return out
+
 
 def _offsets(lengths: list[int]) -> np.ndarray:
     return np.concatenate(([0], np.cumsum(lengths, dtype=np.int64)))
@@ -194,10 +202,34 @@ class _Block:
                 self.normals.append(p.normal)
         self.size = n
 
-    def record(self, row: int, index: int, t: float, counts: tuple[int, int]) -> FrameMeasurement:
+    def records(
+        self, index: list[int], t: list[float], counts: list[list[int]]
+    ) -> Iterator[FrameMeasurement]:
+        """Every record of the block in order (index, t, counts: the block's rows), the
+        covariances unpacked all at once (each record's a view into one array)."""
+        covariances = (self.pose["covariance"], self.pose["reference_covariance"])
+        unpacked = {"velocity": self.velocity["covariance"].unpacked()}  # type: ignore[attr-defined]
+        unpacked["pose"], unpacked["reference"] = (c.unpacked() for c in covariances)  # type: ignore[attr-defined]
+        for row in range(self.size):
+            yield self.record(row, index[row], t[row], counts[row], unpacked)
+
+    def record(
+        self,
+        row: int,
+        index: int,
+        t: float,
+        counts: tuple[int, int] | list[int],
+        unpacked: dict[str, np.ndarray] | None = None,
+    ) -> FrameMeasurement:
         slot = int(self.slot[row])
         if slot < 0:
             return self.kept[row]
+        if unpacked is None:
+            pose_cov, reference_cov = self.pose["covariance"], self.pose["reference_covariance"]
+            velocity_cov = self.velocity["covariance"]
+        else:
+            pose_cov, reference_cov = unpacked["pose"], unpacked["reference"]
+            velocity_cov = unpacked["velocity"]
         has_pose, has_velocity, has_points = self.has[slot]
         pose = velocity = points = None
         if has_pose:
@@ -206,9 +238,9 @@ class _Block:
             pose = PoseMeasurement(
                 self.pose["rotation"][k],
                 self.pose["position"][k],
-                self.pose["covariance"][k],
+                pose_cov[k],
                 reference=int(self.reference[k]),
-                reference_covariance=self.pose["reference_covariance"][k],
+                reference_covariance=reference_cov[k],
                 reference_jacobian=self.jacobian[12 * a : 12 * b].reshape(6, 2 * (b - a)),
                 reference_ids=self.reference_ids[a:b],
             )
@@ -217,9 +249,7 @@ class _Block:
             t_mid, dt = self.velocity_times[k]
             if self.velocity_float[k]:
                 t_mid, dt = float(t_mid), float(dt)
-            velocity = VelocityMeasurement(
-                self.velocity["twist"][k], self.velocity["covariance"][k], t_mid, dt
-            )
+            velocity = VelocityMeasurement(self.velocity["twist"][k], velocity_cov[k], t_mid, dt)
         if has_points:
             k = int(self.points_row[slot])
             a, b = self.point_offsets[k], self.point_offsets[k + 1]
@@ -328,7 +358,12 @@ class MeasurementTable(Sequence[FrameMeasurement]):
         return self._blocks[block].record(row, index, t, (int(counts[0]), int(counts[1])))
 
     def __iter__(self) -> Iterator[FrameMeasurement]:
-        for i in range(len(self)):
+        columns, sealed = self._all_columns(), len(self._sealed_index)
+        for first, block in zip(self._first, self._blocks, strict=True):
+            rows = slice(first, first + block.size)
+            index, t = self._sealed_index[rows].tolist(), self._sealed_t[rows].tolist()
+            yield from block.records(index, t, columns[rows, 2:4].tolist())
+        for i in range(sealed, len(self)):  # the open records, as appended
             yield self[i]
 
     @property

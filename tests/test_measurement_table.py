@@ -183,3 +183,17 @@ def test_long_outputs_written_in_pieces_read_back_exactly(tmp_path) -> None:
     assert np.allclose(back.rotations, trajectory.rotations, atol=1e-12)
     lines = (tmp_path / "velocity.csv").read_text().splitlines()
     assert len(lines) == k + 1 and lines[0] == "t,vx,vy,vz,wx,wy,wz"
+
+
+def test_iterating_gives_sealed_and_open_records_in_order(small_blocks) -> None:
+    scenario = simulate(paper_scenario(noisy=True, seed=4, duration=5.0))
+    config = FrontEndConfig(pixel_sigma=scenario.pixel_sigma)
+    listed = MeasurementFrontEnd(scenario.camera, scenario.plane, config).process_all(
+        list(scenario.observations)
+    )
+    table = MeasurementTable(listed[:130])  # two sealed blocks of 64, one of 2
+    table.extend(listed[130:])  # 21 records still open (BLOCK_FRAMES = 64)
+    assert len(table._open) == 21
+    for k, (a, b) in enumerate(zip(listed, table, strict=True)):
+        _identical(a, b, f"frame {k}")
+    assert [f.index for f in table] == [f.index for f in listed]
