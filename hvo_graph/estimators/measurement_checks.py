@@ -267,7 +267,7 @@ Screened = tuple[np.ndarray | None, np.ndarray | None, np.ndarray | None, np.nda
 SCREEN_MARGIN: float = 1e-10
 
 #: Frames :func:`screened` checks at once.
-SCREEN_BLOCK: int = 1024
+SCREEN_BLOCK: int = 128
 
 _I3 = np.eye(3)
 
