@@ -12,11 +12,12 @@ import dataclasses
 
 import numpy as np
 import pytest
+from measurement_records import pose_record, velocity_record
 
 from hvo_graph.errors import InputError
 from hvo_graph.estimators.measurement_checks import checked_frame, screen_frames
 from hvo_graph.estimators.smoother import FactorGraphSmoother
-from hvo_graph.types import FrameMeasurement, PoseMeasurement, VelocityMeasurement
+from hvo_graph.types import FrameMeasurement, PoseMeasurement
 
 FPS = 30.0
 
@@ -59,16 +60,7 @@ def test_a_screened_block_gives_the_numbers_of_the_per_frame_checks(noisy_run, s
         _same(_checked(frame, previous, split=split, screened=entry), own)
 
 
-def _pose(**kw):
-    base = dict(rotation=np.eye(3), position=np.zeros(3), covariance=np.eye(6) * 1e-4, reference=0)
-    base.update(kw)
-    return PoseMeasurement(**base)
-
-
-def _velocity(**kw):
-    base = dict(twist=np.zeros(6), covariance=np.eye(6) * 1e-2, t=0.5 / FPS, dt=1 / FPS)
-    base.update(kw)
-    return VelocityMeasurement(**base)
+_pose, _velocity = pose_record, velocity_record
 
 
 def _turn(angle: float) -> np.ndarray:

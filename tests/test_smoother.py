@@ -14,6 +14,7 @@ import gtsam
 import numpy as np
 import pytest
 from gtsam.symbol_shorthand import A, V, X
+from measurement_records import pose_record, velocity_record
 
 from hvo_graph.errors import InputError
 from hvo_graph.estimators.kalman import KalmanBaseline
@@ -477,16 +478,7 @@ def _frame(k, *, pose=None, velocity=None, t=None):
     return FrameMeasurement(k, k / FPS if t is None else t, pose, velocity, 4)
 
 
-def _pose(**kw):
-    base = dict(rotation=np.eye(3), position=np.zeros(3), covariance=np.eye(6) * 1e-4, reference=0)
-    base.update(kw)
-    return PoseMeasurement(**base)
-
-
-def _velocity(**kw):
-    base = dict(twist=np.zeros(6), covariance=np.eye(6) * 1e-2, t=0.5 / FPS, dt=1 / FPS)
-    base.update(kw)
-    return VelocityMeasurement(**base)
+_pose, _velocity = pose_record, velocity_record
 
 
 @pytest.mark.parametrize(
