@@ -92,6 +92,12 @@ CASES = {
         lambda: with_frames(scenario(), lambda o: only(o, [0, 1]) if 1 <= o.index < 10 else o),
         9,
     ),
+    # the world frame is the first camera frame even when its pose cannot be measured:
+    # frame 1 becomes the reference at its predicted pose, frames 2.. are measured
+    "first frame sees two points": (
+        lambda: with_frames(scenario(), lambda o: only(o, [0, 1]) if o.index == 0 else o),
+        2,
+    ),
     "static camera (H_d = I)": (
         lambda: scenario(linear_amplitude=(0, 0, 0), angular_amplitude=(0, 0, 0)),
         0,

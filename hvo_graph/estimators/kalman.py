@@ -70,7 +70,7 @@ from hvo_graph.estimators.process_noise import (
     kalman_process_noise,
 )
 from hvo_graph.geometry.rotation import euler_to_rotation
-from hvo_graph.types import FrameMeasurement, StateEstimate, Trajectory
+from hvo_graph.types import FrameMeasurement, PoseMeasurement, StateEstimate, Trajectory
 
 #: R_k diagonals of the paper's presets by (id of the row pattern, preset): constant.
 _PRESET_ROWS: dict[tuple[int, str], tuple] = {}
@@ -163,6 +163,7 @@ class KalmanBaseline(Estimator):
         self._shared = np.zeros((6, 6))  # reference noise of the latest pose ("measured")
         self._shared_nonzero = False
         self._last_pose: tuple[int, int] | None = None  # (frame, reference) of the latest pose
+        self._first_pose: int | None = None  # frame of the first pose met by update()
         self.world_frame_velocity = bool(world_frame_velocity)
         P0 = as_covariance(
             DEFAULT_INITIAL_COVARIANCE if initial_covariance is None else initial_covariance,
@@ -282,9 +283,11 @@ class KalmanBaseline(Estimator):
         self._t_prev = t
         # predict-only frames leave the last update's H, R, y, S, K undefined
         self.H = self.R = self.y = self.S = self.K = None
+        if frame.pose is not None and self._last_pose is None:
+            self._first_pose = frame.index
         frame = self._own_noise(frame)
         if frame.pose is not None and frame.pose.reference != 0:
-            frame = dataclasses.replace(frame, pose=self.pose_in_world(frame.pose))
+            frame = dataclasses.replace(frame, pose=self._world_pose(frame.pose))
         if self.world_frame_velocity:
             p, w, r = self.x[ANGLES]
             meas = state_measurement(
@@ -318,6 +321,17 @@ class KalmanBaseline(Estimator):
             return super().run(frames)
         finally:
             self._prepared = {}
+
+    def _world_pose(self, pose: PoseMeasurement) -> PoseMeasurement:
+        """:meth:`pose_in_world`, except for a keyframe older than the first pose (the
+        first frame saw too few points): the filter's estimate of it is then its random
+        initial state, the front end's (predicted from W = frame 0 on) is far closer."""
+        early = self._first_pose is not None and pose.reference < self._first_pose
+        if not early or pose.reference_rotation is None or pose.reference_position is None:
+            return self.pose_in_world(pose)
+        R, p = pose.reference_rotation, pose.reference_position
+        position = R @ np.asarray(pose.position) + p
+        return PoseMeasurement(R @ pose.rotation, position, pose.covariance, reference=0)
 
     def _own_noise(self, frame: FrameMeasurement) -> FrameMeasurement:
         """The frame as the filter uses it: with "measured" R, the pose's own-pixel

@@ -9,8 +9,8 @@ and the reasons for every default):
   H_d pose against frame k0 carries one shared draw of that frame's pixel noise
   (``shared_reference_noise``): the prior's covariance is that noise, so X(k0)
   estimates the shared offset, and poses are reported relative to it,
-  X_k = X(k0)^-1 X(k) (else: std ``world_sigma``). Weak zero-mean priors on V(k0)
-  (and A(k0)) (``initial_twist_sigma``);
+  X_k = X(k0)^-1 X(k) (else, or when frame k0 has no pose and a keyframe's come first:
+  std ``world_sigma``). Weak zero-mean priors on V(k0) (and A(k0)) (``initial_twist_sigma``);
 - pose measurement from the discrete homography H_d: with reference 0 (W) a
   ``PriorFactorPose3`` on X(k); with a keyframe reference r a between factor
   X(r) -> X(k); noise ``Gaussian.Covariance`` of the frame's own pixels
@@ -213,12 +213,11 @@ class FactorGraphSmoother(Estimator):
         #: The factors by role, for the smoothed error covariance (with covariances).
         self.record: FactorRecord | None = FactorRecord() if self.compute_covariance else None
         self._anchored = False  # X(k0) has its prior from the reference frame's noise
+        self._world_posed = False  # a pose against W (frame k0) came in
         self._anchor_covariance = np.zeros((6, 6))  # its latest marginal (online)
         self._anchor_start = gtsam.noiseModel.Isotropic.Sigma(6, ANCHOR_START_SIGMA)
-        self._world_sigma = float(world_sigma)
-        self._world_noise = gtsam.noiseModel.Isotropic.Sigma(
-            6, as_number(world_sigma, "world_sigma", above=0.0)
-        )
+        self._world_sigma = as_number(world_sigma, "world_sigma", above=0.0)
+        self._world_noise = gtsam.noiseModel.Isotropic.Sigma(6, self._world_sigma)
         self._twist_prior_noise = gtsam.noiseModel.Isotropic.Sigma(
             6, as_number(initial_twist_sigma, "initial_twist_sigma", above=0.0)
         )
@@ -288,6 +287,7 @@ class FactorGraphSmoother(Estimator):
         measured, cov, ref = pose_meas[:3]
         noise = self._pose_noise(cov)
         if ref == 0:
+            self._world_posed = True
             factor = gtsam.PriorFactorPose3(X(k), measured, noise)
             graph.add(factor)
             self.backend.store.add_pose_prior(measured, cov)
@@ -302,15 +302,11 @@ class FactorGraphSmoother(Estimator):
                 else:
                     self.record.measurement.append(factor)
             return measured
-        factor, pose_guess = keyframe_pose_factor(
-            k,
-            ref,
-            measured,
-            noise,
-            measurement_checks.keyframe_model(pose, k),
-            self.backend.current_pose(ref),
-            self.backend.in_graph(ref),
-        )
+        if self.shared_reference_noise and not self._world_posed and not self._anchored:
+            self._anchor(graph, _ZERO66)  # frame k0 had no pose: W is its frame all the same
+        model = measurement_checks.keyframe_model(pose, k)
+        current, in_graph = self.backend.current_pose(ref), self.backend.in_graph(ref)
+        factor, pose_guess = keyframe_pose_factor(k, ref, measured, noise, model, current, in_graph)
         self._add(graph, factor, "measurement")
         return pose_guess
 

@@ -227,6 +227,10 @@ class MeasurementFrontEnd:
         prev = self._previous  # no pose: carry the last motion on at the last twist
         if pose is None and self._normal is not None and prev is not None and prev.R is not None:
             R, T = motion_after_twist(prev.R, prev.T, self._last_twist, obs.t - prev.t)
+        elif pose is None and prev is None and self._normal is not None:
+            # The world frame is the first camera frame by definition, measurable or not (too
+            # few points): later frames then re-acquire from its motion-model prediction.
+            R, T = np.eye(3), np.zeros(3)
         frame = TrackedFrame(obs.index, obs.t, ids, m, R, T)
         velocity = self._measure_velocity(frame) if prev is not None else None
         self._last_twist = self._last_twist if velocity is None else np.asarray(velocity.twist)
