@@ -225,12 +225,10 @@ class MeasurementFrontEnd:
         except InputError:  # points geometry refuses (degenerate, behind the camera): no pose
             R, T, pose = None, None, None
         prev = self._previous  # no pose: carry the last motion on at the last twist
-        if pose is None and self._normal is not None and prev is not None and prev.R is not None:
+        if pose is None and self._normal is not None and prev is None:  # W, too few points
+            R, T = np.eye(3), np.zeros(3)  # (the next frame with enough points re-acquires)
+        elif pose is None and self._normal is not None and prev.R is not None:
             R, T = motion_after_twist(prev.R, prev.T, self._last_twist, obs.t - prev.t)
-        elif pose is None and prev is None and self._normal is not None:
-            # The world frame is the first camera frame by definition, measurable or not (too
-            # few points): later frames then re-acquire from its motion-model prediction.
-            R, T = np.eye(3), np.zeros(3)
         frame = TrackedFrame(obs.index, obs.t, ids, m, R, T)
         velocity = self._measure_velocity(frame) if prev is not None else None
         self._last_twist = self._last_twist if velocity is None else np.asarray(velocity.twist)
@@ -487,7 +485,7 @@ def measure_sequence(
     config: FrontEndConfig | None = None,
     **overrides: object,
 ) -> list[FrameMeasurement]:
-    """Run the front end over a whole sequence.
+    """Run the front end over a whole sequence: one :class:`FrameMeasurement` per frame.
 
     Args:
         observations: frames in time order (e.g. from :func:`hvo_graph.io.tracks.read_tracks`).
@@ -495,10 +493,7 @@ def measure_sequence(
         plane: d* (and n* when known) in the first frame.
         config: front-end settings; keyword ``overrides`` replace single fields
             (e.g. ``pixel_sigma=0.5``).
-    Returns:
-        One :class:`FrameMeasurement` per frame.
     """
     if overrides:
-        base = config or FrontEndConfig()
-        config = FrontEndConfig(**{**base.__dict__, **overrides})
+        config = FrontEndConfig(**{**(config or FrontEndConfig()).__dict__, **overrides})
     return MeasurementFrontEnd(camera, plane, config).process_all(observations)
