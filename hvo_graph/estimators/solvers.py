@@ -203,7 +203,9 @@ class FixedLagBackend(IncrementalBackend):
         """The smoother timestamp of a time relative to the first frame, rounded down to
         a multiple of the block length lag / MARGINALIZATION_BLOCKS."""
         block = self.lag / MARGINALIZATION_BLOCKS
-        return math.floor(stamp_time / block + 1e-9) * block
+        # A frame due on a block boundary stays on it: wall-clock times (~1e9 s) keep only
+        # ~1e-7 s of resolution, so times relative to the first frame round off by that much.
+        return math.floor(stamp_time / block + 1e-4) * block
 
     def _update(
         self,

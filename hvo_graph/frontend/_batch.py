@@ -337,7 +337,7 @@ def _measure(
             }
         pose = PoseMeasurement(
             *(R_rc[k], p_rc[k], covariance[k]),
-            reference=ref.index,
+            reference=0 if ref.index == front._world_index else ref.index,  # 0: W
             reference_covariance=shared_covariance[k],
             reference_jacobian=jacobian,
             reference_ids=kept_ids.copy(),

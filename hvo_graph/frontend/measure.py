@@ -346,7 +346,7 @@ class MeasurementFrontEnd:
             }
         pose = PoseMeasurement(
             *(R_rc, p_rc, covariance),
-            reference=ref.index,
+            reference=0 if ref.index == self._world_index else ref.index,  # 0: W
             reference_covariance=shared_covariance,
             reference_jacobian=shared_jacobian,
             reference_ids=shared[keep],
