@@ -35,6 +35,7 @@ from hvo_graph.frontend import (
 )
 from hvo_graph.frontend.health import front_end_health
 from hvo_graph.geometry.camera import CameraModel
+from hvo_graph.geometry.plane_normal import NormalFit
 from hvo_graph.measurement_table import frame_columns
 from hvo_graph.types import FrameMeasurement, FrameObservations, Plane, Trajectory
 
@@ -139,6 +140,8 @@ class EstimateRun:
         front_end: the front end's settings in force.
         options: the estimator options given.
         excluded_tracks: track ids the front end left out as off the plane.
+        normal_fit: n* fitted to the whole sequence when the scene did not give it
+            (:func:`~hvo_graph.frontend.normal_search.sequence_normal`), else None.
     """
 
     method: str
@@ -148,6 +151,7 @@ class EstimateRun:
     front_end: FrontEndConfig
     options: dict[str, object]
     excluded_tracks: frozenset[int] = frozenset()
+    normal_fit: NormalFit | None = None
 
     def summary(self) -> dict[str, object]:
         """The run as plain values: settings in force, noise chosen, data rejected, and the
@@ -193,6 +197,16 @@ class EstimateRun:
             | {"ransac_px_in_force": self.front_end.ransac_px},
             "counts": counts,
             "front_end_health": front_end_health(self.frames).as_dict(),
+            **({"plane_normal_fit": self._normal_summary()} if self.normal_fit else {}),
+        }
+
+    def _normal_summary(self) -> dict[str, object]:
+        fit = self.normal_fit
+        assert fit is not None
+        return {
+            "normal": [float(x) for x in fit.normal],
+            "sigma_deg": fit.sigma_deg,
+            "frames": len(fit.motions),
         }
 
 
@@ -219,7 +233,9 @@ def run_estimate(
         trajectory = dataclasses.replace(trajectory, covariances=None)
     options.pop("online", None)
     return EstimateRun(
-        method, trajectory, estimator, frames, config, options, front_end.excluded_tracks
+        *(method, trajectory, estimator, frames, config, options),
+        front_end.excluded_tracks,
+        front_end.normal_fit,
     )
 
 

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import argparse
+import sys
 import time
 from typing import TYPE_CHECKING
 
@@ -298,6 +299,14 @@ def run(args: argparse.Namespace) -> int:
         write_estimate_dir(stage, run.trajectory)
         write_run_record(stage, record)
     _report_health(run.frames)
+    if run.normal_fit is not None:
+        fit = run.normal_fit
+        normal = ", ".join(f"{x:.4f}" for x in fit.normal)
+        print(
+            f"{PROG} estimate: plane normal n* = ({normal}) fitted to {len(fit.motions)} "
+            f"frames, standard deviation {fit.sigma_deg:.2f} deg",
+            file=sys.stderr,
+        )
     counts = run.summary()["counts"]
     rejected = counts["rejected_points"]  # type: ignore[index]
     note = f"; {rejected} track points rejected as outliers" if rejected else ""
@@ -309,7 +318,6 @@ def run(args: argparse.Namespace) -> int:
 
 def _report_health(frames: list) -> None:
     """The front end's health on stderr, always (a lost pose must never go unnoticed)."""
-    import sys
 
     from hvo_graph.frontend.health import front_end_health
 

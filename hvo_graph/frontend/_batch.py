@@ -25,6 +25,7 @@ import numpy as np
 
 from hvo_graph.errors import InputError
 from hvo_graph.frontend._points import TrackedFrame, shared_count
+from hvo_graph.frontend.normal_search import sequence_normal
 from hvo_graph.frontend.velocity import flow_twist, mid_interval_plane
 from hvo_graph.geometry import _fit_batch as batch
 from hvo_graph.geometry._consensus import all_inliers
@@ -66,6 +67,19 @@ def measure_frames(
     out = [] if out is None else out
     if not isinstance(observations, Sequence):  # a list, a lazy track table: not copied
         observations = list(observations)
+    if front.normal is None and front._reference is None and front.config.pose_solver != "ippe":
+        front.normal_fit = sequence_normal(  # a whole sequence: n* from all of it, at once
+            observations,
+            front.camera,
+            front.plane.distance,
+            front._sigma,
+            min_points=front.config.min_points,
+            min_parallax=front.config.min_parallax,
+            ransac_px=front.config.ransac_px,
+            huber=huber,
+        )
+        if front.normal_fit is not None:
+            front._normal = front.normal_fit.normal
     i, n, size = 0, len(observations), FIRST_STRETCH
     while i < n:
         stop = min(n, i + size)

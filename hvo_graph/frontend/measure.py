@@ -47,6 +47,7 @@ from hvo_graph.geometry.camera import CameraModel
 from hvo_graph.geometry.continuous import motion_after_twist
 from hvo_graph.geometry.decomposition import decompose_homography, physically_valid_solutions
 from hvo_graph.geometry.discrete import estimate_homography, ippe_motion
+from hvo_graph.geometry.plane_normal import NormalFit
 from hvo_graph.geometry.transfer import keyframe_plane_jacobian
 from hvo_graph.measurement_table import MeasurementTable
 from hvo_graph.types import (
@@ -176,7 +177,9 @@ class MeasurementFrontEnd:
     keyframe (see ``FrontEndConfig.keyframe_min_points``) and pose
     measurements become relative to it (``PoseMeasurement.reference``). A frame
     with fewer than ``min_points`` points shared with the reference gets no
-    pose; fewer shared with the previous frame, no velocity.
+    pose; fewer shared with the previous frame, no velocity. Without n*, a whole
+    sequence (:meth:`process_all`) has it fitted to all of its frames first
+    (:attr:`normal_fit`); frame by frame, it comes from the first two that agree.
     """
 
     def __init__(self, camera: CameraModel, plane: Plane, config: FrontEndConfig | None = None):
@@ -200,6 +203,7 @@ class MeasurementFrontEnd:
         self._reference_plane: tuple | None = None
         self._collinear = CollinearMemo(COLLINEAR_SIGMAS * self._sigma)
         self._fit: PlaneTransfer | None = None  # the latest pose fit
+        self.normal_fit: NormalFit | None = None
 
     @property
     def normal(self) -> np.ndarray | None:
@@ -438,11 +442,8 @@ class MeasurementFrontEnd:
         return R, plane.distance * t, inliers
 
     def _estimate_normal(self, H: np.ndarray, m_ref: np.ndarray, m_cur: np.ndarray) -> bool:
-        """Pick n* from the decompositions of two frames with enough parallax.
-
-        Each decomposition leaves two physically valid normals; the true n* is
-        the one both frames agree on (the spurious one moves with the motion).
-        """
+        """Pick n* from two frames with parallax: of each one's two valid decompositions,
+        the true normal is the one both agree on (the spurious one moves with the motion)."""
         valid = physically_valid_solutions(decompose_homography(H), m_ref, m_cur)
         if not valid or np.linalg.norm(valid[0].translation) < self.config.min_parallax:
             return False
