@@ -155,6 +155,14 @@ def test_degenerate_frames_are_skipped_and_the_covariance_covers_the_error(case,
         assert errors.position_max < 0.05, (name, errors.position_max)
 
 
+def test_a_first_frame_without_a_pose_counts_as_one_reacquisition():
+    build, _ = CASES["first frame sees two points"]
+    s = build()
+    health = run_estimate(s.observations, s, method="measurements").summary()["front_end_health"]
+    assert (health["reference_changes"], health["reacquisitions"]) == (1, 1)
+    assert health["gaps"] == ((0, 1),)
+
+
 def test_measurements_method_skips_the_same_frames(case):
     name, s, missing = case
     run = run_estimate(s.observations, s, method="measurements")

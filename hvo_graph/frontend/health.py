@@ -107,7 +107,7 @@ def front_end_health(frames: Sequence[FrameMeasurement]) -> FrontEndHealth:
     longest = max(gaps, key=lambda g: g[2], default=(None, None, 0))
     tracks = columns.num_points.astype(int)
     references = columns.references[columns.has_pose].tolist()
-    changes = [b for a, b in pairwise(references) if b != a]
+    changes = [b for a, b in pairwise([0, *references]) if b != a]  # from W (frame 0) on
     without_pose = {i for i, ok in zip(index, has_pose, strict=True) if not ok}
     return FrontEndHealth(
         frames=len(frames),
