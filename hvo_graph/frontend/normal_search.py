@@ -25,10 +25,13 @@ from hvo_graph.geometry.discrete import collinear, estimate_homography
 from hvo_graph.geometry.plane_normal import NormalFit, refine_plane_normal
 from hvo_graph.types import FrameObservations
 
-__all__ = ["MAX_FRAMES", "sequence_normal"]
+__all__ = ["MAX_FRAMES", "MAX_POINTS", "sequence_normal"]
 
 #: Frames fitted together (spread evenly over those sharing points with the first).
 MAX_FRAMES: int = 200
+
+#: Points of the first frame fitted (those seen in the most of those frames).
+MAX_POINTS: int = 40
 
 #: Frames looked at to find them (evenly spread): bounds the cost on long sequences.
 MAX_SCANNED: int = 2000
@@ -76,6 +79,15 @@ def sequence_normal(
             frames.append((rows, m[cols]))
     if len(frames) > MAX_FRAMES:
         frames = [frames[i] for i in np.linspace(0, len(frames) - 1, MAX_FRAMES).astype(int)]
+    if len(ids0) > MAX_POINTS:  # the longest-seen points: the fit's cost grows with P^2
+        seen = np.bincount(np.concatenate([rows for rows, _ in frames] or [[]]).astype(int))
+        seen = np.pad(seen, (0, len(ids0) - len(seen)))
+        keep = np.zeros(len(ids0), dtype=bool)
+        keep[np.argsort(-seen, kind="stable")[:MAX_POINTS]] = True
+        renumber = np.cumsum(keep) - 1
+        frames = [(renumber[rows[keep[rows]]], m[keep[rows]]) for rows, m in frames]
+        frames = [(rows, m) for rows, m in frames if len(rows) >= min_points]
+        m0 = m0[keep]
     votes = []  # per frame with parallax: (its inlier rows and points, valid solutions)
     for rows, m in frames:
         threshold = None if ransac_px is None or len(rows) < 6 else ransac_px / camera.mean_focal
