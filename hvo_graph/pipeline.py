@@ -227,6 +227,7 @@ def run_estimate(
     config = front_end_config(scene, method=method, **front)
     front_end = MeasurementFrontEnd(scene.camera, scene.plane, config)
     frames = front_end.process_table(observations)
+    _check_measured(frames, front_end, method)
     smoothed = estimator.run(frames)
     trajectory = estimator.online_trajectory() if online else smoothed
     if not options.get("covariance") and trajectory.covariances is not None:
@@ -237,6 +238,29 @@ def run_estimate(
         front_end.excluded_tracks,
         front_end.normal_fit,
     )
+
+
+def _check_measured(
+    frames: Sequence[FrameMeasurement], front_end: MeasurementFrontEnd, method: str
+) -> None:
+    """An InputError when nothing of a sequence could be measured: its trajectory would be
+    the motion model's start state alone, whatever the camera did."""
+    if len(frames) < 2:
+        return
+    if front_end.normal is None:
+        raise InputError(
+            "plane.normal: not given, and the sequence has too little parallax to estimate it "
+            "(no frame moved 5 % of d* while sharing 4 points with the first); "
+            "give plane.normal in the camera file"
+        )
+    columns = frame_columns(frames)
+    if not method.startswith("tight") and not (
+        columns.has_pose[1:].any() or columns.has_velocity.any()
+    ):
+        raise InputError(
+            "tracks: no frame could be measured (none shares 4 points, not on one line, "
+            "with the first frame or with the frame before it)"
+        )
 
 
 def estimate(

@@ -108,12 +108,17 @@ def test_a_track_off_the_plane_does_not_tilt_the_normal(paper):
     )
 
 
-def test_a_static_camera_tells_no_normal():
+def test_a_static_camera_leaves_the_normal_unobserved_and_the_error_bounded():
+    """Without translation H_d = R whatever n*: the fit's n* means little (it fits the
+    noise; ~20 degrees off here), but a wrong n* only matters through T, so the poses
+    stay within ~3x their error with n* given (3.7 mm RMSE here)."""
     s = simulate(
         paper_scenario(duration=2.0, linear_amplitude=(0, 0, 0), angular_amplitude=(0, 0, 0))
     )
-    sigma = s.pixel_sigma / s.camera.mean_focal
-    assert sequence_normal(s.observations, s.camera, s.plane.distance, sigma) is None
+    unknown = dataclasses.replace(s, plane=Plane(s.plane.distance, None))
+    trajectory = run_estimate(unknown.observations, unknown).trajectory
+    errors = summarize(error_series(trajectory, s.groundtruth), t_start=0.5)
+    assert errors.position_max < 0.03 and errors.orientation_max < 1.0, errors
 
 
 def test_the_smoother_without_the_normal_is_close_to_the_smoother_given_it(paper):

@@ -74,7 +74,6 @@ def measure_frames(
             front.plane.distance,
             front._sigma,
             min_points=front.config.min_points,
-            min_parallax=front.config.min_parallax,
             ransac_px=front.config.ransac_px,
             huber=huber,
         )

@@ -36,6 +36,12 @@ MAX_POINTS: int = 40
 #: Frames looked at to find them (evenly spread): bounds the cost on long sequences.
 MAX_SCANNED: int = 2000
 
+#: Frames of most parallax whose decompositions propose starting normals.
+TOP_FRAMES: int = 10
+
+#: Most starting normals tried (the fit from each; the smallest cost wins).
+MAX_STARTS: int = 4
+
 #: Decompositions within this angle (degrees) agree on n*.
 AGREEMENT_DEG: float = 5.0
 
@@ -47,7 +53,7 @@ def sequence_normal(
     sigma: float,
     *,
     min_points: int = 4,
-    min_parallax: float = 0.05,
+    min_parallax: float = 0.01,
     ransac_px: float | None = None,
     huber: float | None = 2.0,
 ) -> NormalFit | None:
@@ -59,7 +65,7 @@ def sequence_normal(
         distance: d*, metres.
         sigma: pixel noise in normalized units.
         min_points: fewest points a frame must share with the first.
-        min_parallax: ||T|| / d* a frame's decomposition needs to vote for n*.
+        min_parallax: ||T|| / d* a frame's decomposition needs to propose a starting n*.
         ransac_px: RANSAC threshold on each frame's H_d (pixels; None: none).
         huber: Huber threshold of the joint fit (whitened residual norm).
     Returns:
@@ -88,7 +94,7 @@ def sequence_normal(
         frames = [(renumber[rows[keep[rows]]], m[keep[rows]]) for rows, m in frames]
         frames = [(rows, m) for rows, m in frames if len(rows) >= min_points]
         m0 = m0[keep]
-    votes = []  # per frame with parallax: (its inlier rows and points, valid solutions)
+    votes = []  # per frame: (its inlier rows and points, valid solutions, parallax)
     for rows, m in frames:
         threshold = None if ransac_px is None or len(rows) < 6 else ransac_px / camera.mean_focal
         try:
@@ -97,35 +103,46 @@ def sequence_normal(
             continue
         a, b = m0[rows[inliers]], m[inliers]
         valid = physically_valid_solutions(decompose_homography(euclidean(H, a, b)), a, b)
-        if valid and np.linalg.norm(valid[0].translation) >= min_parallax:
-            votes.append(((rows[inliers], b), valid))
-    if not votes:
+        if valid:
+            votes.append(((rows[inliers], b), valid, float(np.linalg.norm(valid[0].translation))))
+    # the start: the normals the frames of most parallax agree on (each decomposition has
+    # a spurious twin; with little parallax it can win the vote, so the fit starts from
+    # each distinct candidate and the smallest cost decides)
+    top = sorted((v for v in votes if v[2] >= min_parallax), key=lambda v: -v[2])[:TOP_FRAMES]
+    if not top:
         return None
-    normal = _most_agreed(votes)
-    # each frame starts from its solution nearest to that n*
-    starts = [max(valid, key=lambda s: float(s.normal @ normal)) for _, valid in votes]
-    motions = [(s.rotation, s.translation * distance) for s in starts]
-    try:
-        return refine_plane_normal(
-            m0, [frame for frame, _ in votes], motions, normal, distance, sigma, huber=huber
-        )
-    except (InputError, np.linalg.LinAlgError):
-        return None
+    best: NormalFit | None = None
+    for normal in _candidates([valid for _, valid, _ in top]):
+        # each frame starts from its solution nearest to that n*
+        starts = [max(valid, key=lambda s: float(s.normal @ normal)) for _, valid, _ in votes]
+        motions = [(s.rotation, s.translation * distance) for s in starts]
+        try:
+            fit = refine_plane_normal(
+                m0, [frame for frame, _, _ in votes], motions, normal, distance, sigma, huber=huber
+            )
+        except (InputError, np.linalg.LinAlgError):
+            continue
+        if best is None or fit.cost < best.cost:
+            best = fit
+    return best
 
 
-def _most_agreed(votes: list) -> np.ndarray:
-    """The candidate normal that the most frames have a solution within
-    :data:`AGREEMENT_DEG` of (ties: the larger summed cosine), averaged with those."""
-    candidates = np.array([s.normal for _, valid in votes for s in valid])
-    per_frame = [np.array([s.normal for s in valid]) for _, valid in votes]
+def _candidates(solutions: list) -> list[np.ndarray]:
+    """Up to :data:`MAX_STARTS` distinct normals (more than :data:`AGREEMENT_DEG` apart)
+    from the frames' valid decompositions, the most agreed on first: each is the mean of
+    the frames' solutions within :data:`AGREEMENT_DEG` of it."""
+    per_frame = [np.array([s.normal for s in valid]) for valid in solutions]
     cos_limit = np.cos(np.radians(AGREEMENT_DEG))
-    best, best_score = candidates[0], (-1, -np.inf)
-    for c in candidates:
-        nearest = np.array([np.max(normals @ c) for normals in per_frame])
-        score = (int(np.sum(nearest >= cos_limit)), float(nearest.sum()))
-        if score > best_score:
-            best, best_score = c, score
-    agreeing = [normals[np.argmax(normals @ best)] for normals in per_frame]
-    agreeing = [n for n in agreeing if n @ best >= cos_limit]
-    mean = np.sum(agreeing, axis=0)
-    return mean / np.linalg.norm(mean)
+    scored = []
+    for c in np.concatenate(per_frame):
+        nearest = np.array([normals[np.argmax(normals @ c)] for normals in per_frame])
+        agree = nearest[nearest @ c >= cos_limit]
+        mean = agree.sum(axis=0) / np.linalg.norm(agree.sum(axis=0))
+        scored.append(((len(agree), float((nearest @ c).sum())), mean))
+    chosen: list[np.ndarray] = []
+    for _, mean in sorted(scored, key=lambda x: x[0], reverse=True):
+        if all(mean @ c < cos_limit for c in chosen):
+            chosen.append(mean)
+        if len(chosen) == MAX_STARTS:
+            break
+    return chosen

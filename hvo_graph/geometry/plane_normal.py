@@ -47,6 +47,7 @@ class NormalFit:
         motions: [(R_k (3, 3), T_k (3,))] every frame's refined motion.
         reference: (P, 3) the reference's refined normalized points mu_i.
         iterations: Gauss-Newton iterations run.
+        cost: the final robust cost (sum of squared whitened residuals, Huber beyond).
     """
 
     normal: np.ndarray
@@ -55,6 +56,7 @@ class NormalFit:
     motions: list[tuple[np.ndarray, np.ndarray]]
     reference: np.ndarray
     iterations: int
+    cost: float
 
     @property
     def sigma_deg(self) -> float:
@@ -171,4 +173,4 @@ def refine_plane_normal(
         if converged:
             break
     covariance = np.linalg.inv(S)[:2, :2]
-    return NormalFit(n, covariance, basis, motions, mu, iterations)
+    return NormalFit(n, covariance, basis, motions, mu, iterations, float(cost))
