@@ -10,6 +10,7 @@ import dataclasses
 import numpy as np
 import pytest
 
+from hvo_graph.errors import InputError
 from hvo_graph.eval.consistency import trajectory_nees
 from hvo_graph.eval.metrics import error_series, summarize
 from hvo_graph.geometry.discrete import collinear
@@ -236,3 +237,22 @@ def test_the_smoother_bridges_ten_percent_dropped_frames():
     assert errors.linear_velocity_rmse < 1.5 * reference.linear_velocity_rmse
     nees, twist_nees = trajectory_nees(bridged, gapped.groundtruth, t_start=0.5)
     assert nees < 3.0 and twist_nees < 3.0
+
+
+def test_a_sequence_with_nothing_measurable_is_a_one_line_error():
+    """Three points in every frame: no pose, no twist anywhere; the trajectory would be the
+    motion model's start state whatever the camera did."""
+    s = with_frames(scenario(), lambda o: only(o, [0, 1, 2]))
+    with pytest.raises(InputError) as raised:
+        run_estimate(s.observations, s, method="smoother")
+    assert str(raised.value) == (
+        "tracks: no frame could be measured (none shares 4 points, not on one line, "
+        "with the first frame or with the frame before it)"
+    )
+
+
+def test_no_parallax_to_tell_an_unknown_normal_is_a_one_line_error():
+    still = scenario(linear_amplitude=(0, 0, 0), angular_amplitude=(0, 0, 0), noise_var=0.0)
+    s = unknown_normal(still)
+    with pytest.raises(InputError, match=r"^plane.normal: not given, and the sequence has too"):
+        run_estimate(s.observations, s, method="kalman")
