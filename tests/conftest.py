@@ -7,11 +7,20 @@ not modify what they get.
 
 from __future__ import annotations
 
+import os
+
 import pytest
+from hypothesis import settings
 
 from hvo_graph.frontend import measure_sequence
 from hvo_graph.sim.scenario import Scenario, paper_scenario, simulate
 from hvo_graph.types import FrameMeasurement
+
+# The property tests draw the same examples on every run (and in CI): a failure is then
+# a change of the code, never the luck of the draw. HYPOTHESIS_PROFILE=explore draws anew.
+settings.register_profile("repeatable", derandomize=True)
+settings.register_profile("explore", derandomize=False)
+settings.load_profile(os.environ.get("HYPOTHESIS_PROFILE", "repeatable"))
 
 
 @pytest.fixture(scope="session")

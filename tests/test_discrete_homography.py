@@ -242,7 +242,8 @@ def test_decomposition_agrees_with_opencv(scene: Scene) -> None:
     OpenCV's closed form (square roots of minors of H^T H - I) loses digits when a
     minor is near zero (e.g. 1.7e-7 on its normal for R = Exp([0, 0, 1e-10]),
     t = [0, 0.125, 0], n* = e3, where ours is exact), so agreement is checked to
-    1e-6; accuracy against ground truth is checked to 1e-8 by the recovery tests.
+    1e-5 (1.6e-6 was seen for a 0.03 rad turn about y, t = [0, 0.0137, 0], n* in the
+    xz plane); accuracy against ground truth is checked to 1e-8 by the recovery tests.
     """
     H_e = scene.R + np.outer(scene.t, scene.normal)
     assume(np.abs(H_e.T @ H_e - np.eye(3)).max() > 1e-2)
@@ -257,7 +258,7 @@ def test_decomposition_agrees_with_opencv(scene: Scene) -> None:
             _close(sol, theirs[k][0], theirs[k][1].ravel(), theirs[k][2].ravel()) for k in unmatched
         ]
         k = int(np.argmin(errs))
-        assert errs[k] < 1e-6
+        assert errs[k] < 1e-5
         unmatched.pop(k)
     assert not unmatched
 
