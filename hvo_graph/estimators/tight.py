@@ -69,6 +69,7 @@ from hvo_graph.estimators.solvers import Backend, BatchBackend
 from hvo_graph.estimators.tight_solvers import (
     LandmarkFixedLagBackend,
     WindowIsam2Backend,
+    confirm_off_plane,
     drop_landmarks,
     tight_isam2_params,
 )
@@ -435,34 +436,33 @@ class TightSmoother(Estimator):
     def _check_tracks(self) -> None:
         """Reject the tracks whose observations, at the smoothed poses, no plane point fits
         (:func:`~hvo_graph.estimators.plane_tracks.off_plane_statistic` above
-        ``track_chi2``): the online gate sees one observation at a time, and an off-plane
-        point the front end drops after a few frames never fails it."""
-        if (
-            self._tracks_checked
-            or self._plane is None
-            or not isinstance(self.backend, (BatchBackend, WindowIsam2Backend))
-        ):
+        ``track_chi2``), and still none with the poses uncertain
+        (:func:`~hvo_graph.estimators.tight_solvers.confirm_off_plane`): the online gate
+        sees one observation at a time; an off-plane point dropped early never fails it."""
+        backend = self.backend
+        if self._tracks_checked or self._plane is None or backend.solver == "fixed-lag":
             return
         self._tracks_checked = True
-        poses = {
-            k: pose
-            for k, (pose, _, _) in zip(
-                self._indices, self.backend.final(self._indices, marginals=False), strict=True
-            )
-        }
+        final = list(backend.final(self._indices, marginals=False))
         frames = np.concatenate([np.full(len(keys), k) for k, keys, _, _ in self._observations])
         row = {k: i for i, k in enumerate(self._indices)}
-        failed = off_plane_keys(
-            np.array([poses[k].rotation().matrix() for k in self._indices]),
-            np.array([poses[k].translation() for k in self._indices]),
-            np.array([row[int(k)] for k in frames], dtype=int),
+        observed = (
+            frames,
             np.concatenate([keys for _, keys, _, _ in self._observations]),
             np.concatenate([m for _, _, m, _ in self._observations]),
             np.concatenate([np.full(len(k), s) for _, k, _, s in self._observations]),
+        )
+        candidates = off_plane_keys(
+            np.array([pose.rotation().matrix() for pose, _, _ in final]),
+            np.array([pose.translation() for pose, _, _ in final]),
+            np.array([row[int(k)] for k in frames], dtype=int),
+            *observed[1:],
             self._plane,
             self.track_chi2,
             skip=self._rejected_keys,
         )
+        plane_noise = self._plane_model(self._plane[0])
+        failed = confirm_off_plane(backend, candidates, observed, plane_noise, self.track_chi2)
         for key in failed:
             track = self._key_track[key]
             self.rejected_tracks.add(track)

@@ -14,7 +14,7 @@ from collections.abc import Callable, Iterator, Sequence
 
 import gtsam
 import numpy as np
-from gtsam.symbol_shorthand import V, X
+from gtsam.symbol_shorthand import A, V, X
 
 from hvo_graph.estimators.factor_store import (
     CHUNK_FRAMES,
@@ -23,15 +23,23 @@ from hvo_graph.estimators.factor_store import (
     final_states,
     stored_optimum,
 )
+from hvo_graph.estimators.least_squares import levenberg_marquardt
+from hvo_graph.estimators.plane_tracks import graph_statistic
 from hvo_graph.estimators.solvers import Backend, BatchBackend, FixedLagBackend, FrameValues
 
 __all__ = [
+    "TRACK_WINDOW_MARGIN",
     "LandmarkFixedLagBackend",
     "WindowIsam2Backend",
+    "confirm_off_plane",
     "copy_value",
     "drop_landmarks",
     "tight_isam2_params",
 ]
+
+#: Frames either side of a track in the graph of :func:`confirm_off_plane` (the frames
+#: beyond are held): the pose uncertainty near the track is that of its neighbourhood.
+TRACK_WINDOW_MARGIN: int = CHUNK_OVERLAP
 
 _LANDMARK = ord("l")
 
@@ -280,3 +288,99 @@ def _value(source: gtsam.Values, key: int) -> object:
 def copy_value(source: gtsam.Values, target: gtsam.Values, key: int) -> None:
     """Insert ``source``'s value of ``key`` (X pose, L landmark or V twist) into ``target``."""
     target.insert(key, _value(source, key))
+
+
+def _track_graph(
+    backend: Backend, frames: np.ndarray
+) -> tuple[gtsam.NonlinearFactorGraph, gtsam.Values, list[int]] | None:
+    """The graph around the frames ``frames`` (indices) of one track at the final optimum:
+    its factors, values and the keys to hold; None when the track spans more frames than
+    one chunk of the final solve (too costly: :func:`confirm_off_plane`)."""
+    if isinstance(backend, BatchBackend):
+        return backend.graph, backend.values(), []
+    if not isinstance(backend, WindowIsam2Backend):
+        return None
+    store, values = backend.store, backend.values()
+    indices = store.indices()
+    places = np.searchsorted(indices, frames)
+    first = max(0, int(places.min()) - TRACK_WINDOW_MARGIN)
+    stop = min(len(store), int(places.max()) + 1 + TRACK_WINDOW_MARGIN)
+    if stop - first > backend.chunk:
+        return None
+    graph, touched = store.graph(first, stop)
+    window = gtsam.Values()
+    outside = [*indices[touched.start : first].tolist(), *indices[stop : touched.stop].tolist()]
+    held = [s(k) for k in outside for s in ((X, V, A) if store.rates else (X, V))]
+    for key in graph.keyVector():
+        copy_value(values, window, key)
+        if key in store.landmarks:
+            for factor in store.landmarks[key]:
+                graph.add(factor)
+    return graph, window, held
+
+
+def confirm_off_plane(
+    backend: Backend,
+    candidates: Sequence[int],
+    observations: tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray],
+    plane_noise: gtsam.noiseModel.Base,
+    threshold: float,
+) -> list[int]:
+    """The landmarks of ``candidates`` (failing the test at fixed poses) that also fail it
+    with the poses uncertain (:func:`~hvo_graph.estimators.plane_tracks.graph_statistic`
+    above ``threshold``), each in the graph of its frames and ``TRACK_WINDOW_MARGIN``
+    frames either side at the final optimum. One at a time, the largest statistic first:
+    a track found off the plane leaves the graph (re-solved) before the others are
+    tested again, so its pull on the poses does not count against them. A track
+    spanning more frames than a chunk of the final solve keeps the fixed-pose verdict.
+
+    Args:
+        backend: the batch or "isam2" back end, its graph complete.
+        candidates: landmark keys.
+        observations: (frame index (N,), landmark key (N,), m (N, 2), sigma (N,)) of
+            every observation.
+        plane_noise: the noise model of the plane prior; threshold: chi^2 (1 dof).
+    Returns:
+        The landmarks off the plane, in the order found.
+    """
+    frames, keys, m, sigma = observations
+    rows = {key: np.flatnonzero(keys == key) for key in candidates}
+    around = {key: _track_graph(backend, frames[rows[key]]) for key in candidates}
+    failed = [key for key in candidates if around[key] is None]
+    remaining = [key for key in candidates if around[key] is not None]
+    while remaining:
+        statistics = []
+        for key in remaining:
+            graph, values, held = around[key]  # type: ignore[misc]
+            graph, values = _without(graph, values, held, set(failed))
+            start = np.asarray(values.atPoint3(key), dtype=float)
+            r = rows[key]
+            statistics.append(
+                graph_statistic(
+                    graph, values, frames[r], m[r], sigma[r], plane_noise, start, held=held
+                )
+            )
+        worst = int(np.argmax(statistics))
+        if statistics[worst] <= threshold:
+            break
+        failed.append(remaining.pop(worst))
+    return failed
+
+
+def _without(
+    graph: gtsam.NonlinearFactorGraph, values: gtsam.Values, held: list[int], keys: set[int]
+) -> tuple[gtsam.NonlinearFactorGraph, gtsam.Values]:
+    """``graph`` without the factors on the landmarks ``keys``, and its optimum from
+    ``values`` (unchanged when no factor goes)."""
+    kept = gtsam.NonlinearFactorGraph()
+    for i in range(graph.size()):
+        factor = graph.at(i)
+        if factor is not None and not keys.intersection(factor.keys()):
+            kept.add(factor)
+    if kept.size() == graph.size():
+        return graph, values
+    trimmed = gtsam.Values()
+    for key in kept.keyVector():
+        copy_value(values, trimmed, key)
+    solved, _ = levenberg_marquardt(kept, trimmed, fixed=held)
+    return kept, solved
