@@ -44,7 +44,8 @@ fails it, yet pulls the poses of those frames and, through the landmarks, the
 world frame. Before the final solve (solvers "isam2" and "batch") every track is
 therefore tested as a whole at the smoothed poses
 (:func:`~hvo_graph.estimators.plane_tracks.off_plane_statistic`, chi^2 with 1 dof
-for a plane point): above ``track_chi2`` it is rejected and the solve runs without it.
+for a plane point); above ``track_chi2``, and again with the poses uncertain
+(:func:`~hvo_graph.estimators.tight_solvers.confirm_off_plane`), it is rejected.
 """
 
 from __future__ import annotations
@@ -445,7 +446,6 @@ class TightSmoother(Estimator):
         self._tracks_checked = True
         final = list(backend.final(self._indices, marginals=False))
         frames = np.concatenate([np.full(len(keys), k) for k, keys, _, _ in self._observations])
-        row = {k: i for i, k in enumerate(self._indices)}
         observed = (
             frames,
             np.concatenate([keys for _, keys, _, _ in self._observations]),
@@ -455,7 +455,7 @@ class TightSmoother(Estimator):
         candidates = off_plane_keys(
             np.array([pose.rotation().matrix() for pose, _, _ in final]),
             np.array([pose.translation() for pose, _, _ in final]),
-            np.array([row[int(k)] for k in frames], dtype=int),
+            np.searchsorted(self._indices, frames),  # frame indices increase
             *observed[1:],
             self._plane,
             self.track_chi2,
