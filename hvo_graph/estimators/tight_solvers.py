@@ -290,33 +290,49 @@ def copy_value(source: gtsam.Values, target: gtsam.Values, key: int) -> None:
     target.insert(key, _value(source, key))
 
 
-def _track_graph(
-    backend: Backend, frames: np.ndarray
-) -> tuple[gtsam.NonlinearFactorGraph, gtsam.Values, list[int]] | None:
-    """The graph around the frames ``frames`` (indices) of one track at the final optimum:
-    its factors, values and the keys to hold; None when the track spans more frames than
-    one chunk of the final solve (too costly: :func:`confirm_off_plane`)."""
+def _window(backend: Backend, frames: np.ndarray) -> tuple[int, int] | None:
+    """Positions [first, stop) of the frames around a track's frames (indices) in a window
+    back end's store ((0, 0) for the batch back end: its whole graph); None when that is
+    more than one chunk of the final solve (too costly: :func:`confirm_off_plane`)."""
     if isinstance(backend, BatchBackend):
-        return backend.graph, backend.values(), []
+        return 0, 0
     if not isinstance(backend, WindowIsam2Backend):
         return None
-    store, values = backend.store, backend.values()
-    indices = store.indices()
-    places = np.searchsorted(indices, frames)
+    places = np.searchsorted(backend.store.indices(), frames)
     first = max(0, int(places.min()) - TRACK_WINDOW_MARGIN)
-    stop = min(len(store), int(places.max()) + 1 + TRACK_WINDOW_MARGIN)
-    if stop - first > backend.chunk:
-        return None
-    graph, touched = store.graph(first, stop)
-    window = gtsam.Values()
-    outside = [*indices[touched.start : first].tolist(), *indices[stop : touched.stop].tolist()]
-    held = [s(k) for k in outside for s in ((X, V, A) if store.rates else (X, V))]
-    for key in graph.keyVector():
-        copy_value(values, window, key)
-        if key in store.landmarks:
+    stop = min(len(backend.store), int(places.max()) + 1 + TRACK_WINDOW_MARGIN)
+    return (first, stop) if stop - first <= backend.chunk else None
+
+
+def _track_graph(
+    backend: Backend, window: tuple[int, int], dropped: set[int]
+) -> tuple[gtsam.NonlinearFactorGraph, gtsam.Values, list[int]]:
+    """The graph of the frames at positions ``window`` (:func:`_window`) without the
+    landmarks ``dropped``, its optimum and the keys held (the frames beyond)."""
+    if isinstance(backend, BatchBackend):
+        graph, values, held = backend.graph, backend.values(), []
+    else:
+        store = backend.store  # type: ignore[attr-defined]
+        indices = store.indices()
+        first, stop = window
+        graph, touched = store.graph(first, stop)
+        outside = [*indices[touched.start : first].tolist(), *indices[stop : touched.stop].tolist()]
+        held = [s(k) for k in outside for s in ((X, V, A) if store.rates else (X, V))]
+        for key in set(graph.keyVector()).intersection(store.landmarks):
             for factor in store.landmarks[key]:
                 graph.add(factor)
-    return graph, window, held
+        values = backend.values()
+    kept = gtsam.NonlinearFactorGraph()
+    for i in range(graph.size()):
+        factor = graph.at(i)
+        if factor is not None and not dropped.intersection(factor.keys()):
+            kept.add(factor)
+    window_values = gtsam.Values()
+    for key in kept.keyVector():
+        copy_value(values, window_values, key)
+    if dropped.intersection(graph.keyVector()):  # no longer at its optimum
+        window_values, _ = levenberg_marquardt(kept, window_values, fixed=held)
+    return kept, window_values, held
 
 
 def confirm_off_plane(
@@ -330,9 +346,10 @@ def confirm_off_plane(
     with the poses uncertain (:func:`~hvo_graph.estimators.plane_tracks.graph_statistic`
     above ``threshold``), each in the graph of its frames and ``TRACK_WINDOW_MARGIN``
     frames either side at the final optimum. One at a time, the largest statistic first:
-    a track found off the plane leaves the graph (re-solved) before the others are
-    tested again, so its pull on the poses does not count against them. A track
-    spanning more frames than a chunk of the final solve keeps the fixed-pose verdict.
+    a track found off the plane leaves the graph (re-solved) before the tracks whose
+    graph it was in are tested again, so its pull on the poses does not count against
+    them. A track spanning more frames than a chunk of the final solve keeps the
+    fixed-pose verdict.
 
     Args:
         backend: the batch or "isam2" back end, its graph complete.
@@ -345,42 +362,28 @@ def confirm_off_plane(
     """
     frames, keys, m, sigma = observations
     rows = {key: np.flatnonzero(keys == key) for key in candidates}
-    around = {key: _track_graph(backend, frames[rows[key]]) for key in candidates}
-    failed = [key for key in candidates if around[key] is None]
-    remaining = [key for key in candidates if around[key] is not None]
+    windows = {key: _window(backend, frames[rows[key]]) for key in candidates}
+    failed = [key for key in candidates if windows[key] is None]
+    remaining = [key for key in candidates if windows[key] is not None]
+    statistics: dict[int, float] = {}  # kept until a track found off the plane is in its graph
+    seen: dict[int, set[int]] = {}  # the keys of each candidate's graph
     while remaining:
-        statistics = []
         for key in remaining:
-            graph, values, held = around[key]  # type: ignore[misc]
-            graph, values = _without(graph, values, held, set(failed))
+            if key in statistics:
+                continue
+            graph, values, held = _track_graph(backend, windows[key], set(failed))  # type: ignore[arg-type]
+            seen[key] = set(graph.keyVector())
             start = np.asarray(values.atPoint3(key), dtype=float)
             r = rows[key]
-            statistics.append(
-                graph_statistic(
-                    graph, values, frames[r], m[r], sigma[r], plane_noise, start, held=held
-                )
+            statistics[key] = graph_statistic(
+                graph, values, frames[r], m[r], sigma[r], plane_noise, start, held=held
             )
-        worst = int(np.argmax(statistics))
+        worst = max(remaining, key=statistics.__getitem__)
         if statistics[worst] <= threshold:
             break
-        failed.append(remaining.pop(worst))
+        failed.append(worst)
+        remaining.remove(worst)
+        for key in remaining:
+            if worst in seen[key]:
+                statistics.pop(key)
     return failed
-
-
-def _without(
-    graph: gtsam.NonlinearFactorGraph, values: gtsam.Values, held: list[int], keys: set[int]
-) -> tuple[gtsam.NonlinearFactorGraph, gtsam.Values]:
-    """``graph`` without the factors on the landmarks ``keys``, and its optimum from
-    ``values`` (unchanged when no factor goes)."""
-    kept = gtsam.NonlinearFactorGraph()
-    for i in range(graph.size()):
-        factor = graph.at(i)
-        if factor is not None and not keys.intersection(factor.keys()):
-            kept.add(factor)
-    if kept.size() == graph.size():
-        return graph, values
-    trimmed = gtsam.Values()
-    for key in kept.keyVector():
-        copy_value(values, trimmed, key)
-    solved, _ = levenberg_marquardt(kept, trimmed, fixed=held)
-    return kept, solved
