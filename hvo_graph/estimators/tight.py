@@ -24,8 +24,10 @@ track comes back after its landmark left the online problem). Factors:
   (radial-tangential, fisheye) goes through :class:`~hvo_graph.geometry.camera.CameraModel`;
   isotropic noise of the frame's ``sigma`` (pixel sigma over the mean focal length)
   under a Huber loss (threshold ``robust_threshold`` on the whitened residual), but
-  Gaussian in the first frame: its pixels alone fix the scale and place along the plane
-  of all later frames, against the motion model's pull (docs/smoother.md);
+  Gaussian in the first frame, whose pixels alone observe the scale and place of the map;
+- first frame: that similarity of the plane (shift along it, turn about n*, scale) held
+  at the first frame's back-projection, its uncertainty added to the covariances
+  (:mod:`~hvo_graph.estimators.plane_gauge`: else the motion model shrinks the map);
 - motion and twist random walk: the same factors and process noise as the homography
   graph (:func:`~hvo_graph.estimators.factors.motion_factor`, Q fitted by maximum
   likelihood on the front end's H_d poses unless ``acceleration_sigma`` is given);
@@ -58,6 +60,7 @@ import numpy as np
 from gtsam.symbol_shorthand import L, V, X
 
 from hvo_graph.errors import InputError, as_integer, as_number
+from hvo_graph.estimators import plane_gauge
 from hvo_graph.estimators.base import Estimator
 from hvo_graph.estimators.choices import TIGHT_SOLVERS
 from hvo_graph.estimators.factors import motion_factor
@@ -228,9 +231,10 @@ class TightSmoother(Estimator):
         self._tracks_checked = False  # since the latest frame
         self._pruned_keys: set[int] = set()
         self._pixel_noise: dict[float, gtsam.noiseModel.Base] = {}
-        self._plane_noise: dict[tuple[float, ...], gtsam.noiseModel.Base] = {}
         #: Projection factors added, and landmarks started.
         self.counts = {"observations": 0, "landmarks": 0}
+        #: The first frame's similarity of the plane, held (plane_gauge), or None.
+        self.gauge: plane_gauge.FirstFrameGauge | None = None
 
     def _set_acceleration_sigma(self, value: float | Sequence[float]) -> None:
         #: (s_w, s_v) of the motion factors added from now on.
@@ -288,12 +292,15 @@ class TightSmoother(Estimator):
                 step = gtsam.Pose3.Expmap((0.5 * dt) * (self._twist + twist_guess))
                 pose_guess = self._pose.compose(step)
         new = self._observe(graph, values, k, pose_guess, points) if points is not None else []
+        if not self._indices:  # the first frame holds the map's similarity (plane_gauge)
+            self.gauge = plane_gauge.hold_first_frame(self.backend, graph, k, new, points)
         values.insert(X(k), pose_guess)
         values.insert(V(k), twist_guess)
         self._indices.append(k)
         self._times.append(t)
         self._tracks_checked = False
         pose, twist, covariance = self.backend.add(graph, values, k, t - self._times[0])
+        covariance = plane_gauge.with_nuisance(self.gauge, k, covariance, pose, twist, online=True)
         self._pose, self._twist = pose, np.asarray(twist, dtype=float)
         if new:
             self._observations.append(
@@ -343,7 +350,8 @@ class TightSmoother(Estimator):
                 self._key_track[key] = track
                 self.counts["landmarks"] += 1
                 values.insert(key, point)
-                graph.add(plane := gtsam.PriorFactorPoint3(key, point, self._plane_model(normal)))
+                stiff = plane_gauge.plane_noise(normal, self.plane_sigma, IN_PLANE_SIGMA)
+                graph.add(plane := gtsam.PriorFactorPoint3(key, point, stiff))
                 self.backend.store.add_landmark(key, plane)  # the final solve's copy
             graph.add(gtsam.GenericProjectionFactorCal3_S2(m, noise, X(k), key, _UNIT_CALIBRATION))
             self.counts["observations"] += 1
@@ -379,19 +387,6 @@ class TightSmoother(Estimator):
             if robust:
                 huber = gtsam.noiseModel.mEstimator.Huber.Create(self.robust_threshold)
                 model = self._pixel_noise[sigma] = gtsam.noiseModel.Robust.Create(huber, model)
-        return model
-
-    def _plane_model(self, normal: np.ndarray) -> gtsam.noiseModel.Base:
-        """Square-root information [n*^T / plane_sigma; in-plane axes / IN_PLANE_SIGMA]."""
-        cache_key = tuple(np.round(normal, 12))
-        model = self._plane_noise.get(cache_key)
-        if model is None:
-            a = np.cross(normal, [1.0, 0.0, 0.0] if abs(normal[0]) < 0.9 else [0.0, 1.0, 0.0])
-            a /= np.linalg.norm(a)
-            b = np.cross(normal, a)
-            R = np.vstack((normal / self.plane_sigma, a / IN_PLANE_SIGMA, b / IN_PLANE_SIGMA))
-            model = gtsam.noiseModel.Gaussian.SqrtInformation(R)
-            self._plane_noise[cache_key] = model
         return model
 
     def _live(self, key: int) -> bool:
@@ -472,6 +467,7 @@ class TightSmoother(Estimator):
         """Drop the factors and values of rejected landmarks from the final graph."""
         if not self._rejected_keys <= self._pruned_keys:
             drop_landmarks(self.backend, self._rejected_keys)
+            self.gauge = plane_gauge.release_tracks(self.gauge, self.backend, self._rejected_keys)
             self._pruned_keys = set(self._rejected_keys)
 
     def trajectory(self) -> Trajectory:
@@ -490,7 +486,9 @@ class TightSmoother(Estimator):
                 positions[i] = pose.translation()
                 twists[i] = twist
                 if covariances is not None:
-                    covariances[i] = cov
+                    covariances[i] = plane_gauge.with_nuisance(
+                        self.gauge, self._indices[i], cov, pose, twist
+                    )
         return Trajectory(
             t=np.array(self._times, dtype=float),
             rotations=rotations,
