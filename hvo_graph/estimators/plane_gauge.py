@@ -1,31 +1,39 @@
-"""The first frame's hold on the map of the tightly coupled smoother: the 4 degrees of
-freedom of a similarity of the plane that no later frame observes.
+"""The scale of the tightly coupled smoother's map, held once the first frames fix it.
 
 A similarity of the world that keeps the plane n*^T X = d* (a shift t along it, a
-rotation theta about n*, a scale 1 + s about a point c of it), applied to every
-pose but the first (X(k0) = I is the world) and to every landmark, changes no later
-projection: only the first frame's pixels observe it. The motion model's cost falls
-with the square of the scale, so the joint maximum a posteriori trades the first
-frame's pixels against it and shrinks the map, more so the longer the sequence (a
-MAP bias on a multiplicative mode: the joint optimum ignores the volume that
-shrinking the whole trajectory removes).
+turn theta about n*, a scale 1 + s about a point c of it: g = (t_a, t_b, theta, s)),
+applied to every pose but the first (X(k0) = I is the world) and to every landmark,
+changes no later projection: only the first frame's pixels and the motion factors
+next to X(k0) (the jump it makes between X(k0) and the next pose) observe it. The
+scale also multiplies every later velocity, so the motion model's cost falls with the
+square of the scale, summed over the whole sequence: the joint maximum a posteriori
+trades that information against a pull that grows with the sequence and shrinks the
+map (a MAP bias on a multiplicative mode: the joint optimum ignores the volume that
+shrinking the whole trajectory removes; -0.6 % at 30,000 frames of the paper's
+scenario, -2.7 % at 100,000). Shift and turn change only the factors next to X(k0):
+no pull.
 
-Here those 4 degrees of freedom are tied to the first frame's back-projection: with
-b_j the plane point seen at m_j from X(k0) = I (in-plane coordinates u_j = E^T b_j,
-E the plane's axes), the weighted least-squares similarity g = (t, theta, s) that
-maps the map's landmarks onto the b_j,
+So the scale is estimated where its information is, at the start, and then held:
+after :data:`HOLD_AFTER` frames (the pull of so few frames is negligible) the map's
+scale relative to the first frame's back-projection is read from the estimate so far
+with its variance, and a stiff factor holds it there for the rest of the sequence;
+every other degree of freedom of the map stays free. The scale is a linear function
+of the first frame's landmarks: with b_j the plane point seen at m_j from X(k0) = I
+(in-plane coordinates u_j = E^T b_j, E the plane's axes), the weighted least-squares
+similarity that maps the landmarks onto the b_j is
 
     g(L) = Sigma_g sum_j A_j^T W_j E^T (b_j - L_j),   A_j = [I_2, J (u_j - c), u_j - c],
 
 (W_j the information of u_j from the pixel noise, Sigma_g = (sum_j A_j^T W_j A_j)^-1
-its covariance, J the quarter turn about n*, c the weighted centroid) is a linear
-function of the landmarks held at 0 by a stiff factor (:meth:`FirstFrameGauge.factor`):
-the motion model cannot move it, every other degree of freedom of the map stays free.
-The estimate of the similarity is then the first frame's own, whose uncertainty
-Sigma_g the graph no longer carries: :meth:`FirstFrameGauge.inflate` adds it back to
-each frame's covariance through that frame's Jacobian with respect to g (a nuisance
-shared by every frame; its correlation with the rest of the first frame's
-information is neglected, a first-order approximation).
+its covariance from the first frame alone, J the quarter turn about n*, c the weighted
+centroid), and the scale is its last component s(L) = c_s^T (L - b). Its variance at
+the hold, c_s^T Sigma_L c_s from the joint marginal of those landmarks, is what the
+graph no longer carries: :meth:`FirstFrameGauge.inflate` adds it back to each frame's
+covariance through that frame's Jacobian with respect to s (a nuisance shared by every
+frame; its correlation with the rest is neglected, a first-order approximation).
+Holding the shift and turn too, or the scale at the first frame's back-projection
+alone, threw away the motion model's information next to X(k0): 3-4 % larger position
+errors on the paper scenario's 10 s runs.
 """
 
 from __future__ import annotations
@@ -42,19 +50,25 @@ from hvo_graph.types import PointObservations
 
 __all__ = [
     "DEFAULT_GAUGE_STIFFNESS",
+    "HOLD_AFTER",
     "MIN_GAUGE_POINTS",
     "FirstFrameGauge",
-    "hold_first_frame",
+    "first_frame_gauge",
+    "hold_scale",
     "plane_axes",
     "plane_noise",
     "release_tracks",
     "with_nuisance",
 ]
 
-#: How much stiffer than the first frame's own information on g the factor holding it
-#: is (its standard deviations are sqrt(diag Sigma_g) over this): g's residual freedom
-#: is 1e-6 of its variance, while QR stays well conditioned (the plane rows are stiffer).
+#: How much stiffer than the estimate it holds the scale factor is (its standard
+#: deviation is the scale's over this): the held scale keeps 1e-6 of its variance,
+#: while QR stays well conditioned (the plane rows are stiffer).
 DEFAULT_GAUGE_STIFFNESS: float = 1e3
+
+#: Frames after which the map's scale is read and held (module docstring): the motion
+#: model's information next to X(k0) is in by then, its pull over them is negligible.
+HOLD_AFTER: int = 30
 
 #: Fewest first-frame landmarks that hold the similarity (2 determine it exactly; 3
 #: leave the fit a redundancy, so one poorly placed point does not decide it).
@@ -89,8 +103,8 @@ def plane_noise(normal: np.ndarray, sigma: float, in_plane_sigma: float) -> gtsa
 
 
 class FirstFrameGauge:
-    """The first frame's similarity of the plane, held by a factor and added back to the
-    covariances (module docstring).
+    """The scale of the map relative to the first frame's back-projection, held by a
+    factor and added back to the covariances (module docstring).
 
     Args:
         keys: (N,) landmark keys L(j) observed in the first frame (X(k0) = I).
@@ -101,9 +115,10 @@ class FirstFrameGauge:
 
     Attributes:
         keys: the landmark keys (list of int); points: (N, 3) the back-projections b_j;
-        center: (3,) c, the point the scale and rotation are about; axes: (3, 2) E;
+        center: (3,) c, the point the scale and turn are about; axes: (3, 2) E;
         covariance: (4, 4) Sigma_g of g = (t_a, t_b, theta, s) from the first frame's
-        pixel noise; coefficients: (N, 4, 3) dg/dL_j.
+        pixel noise alone; coefficients: (N, 4, 3) dg/dL_j; scale, variance: the
+        scale held and its variance (None until :meth:`hold`).
 
     Raises:
         InputError: fewer than :data:`MIN_GAUGE_POINTS` points, a ray that does not
@@ -128,10 +143,13 @@ class FirstFrameGauge:
                 f"each, got {len(m)} points and {len(keys)} keys"
             )
         self.keys = [int(key) for key in keys]
-        #: The first frame's index (its pose is the world: no share of g), and whether the
-        #: factor is in the online graph too (:func:`hold_first_frame`).
+        #: The first frame's index (its pose is the world: no share of the scale).
         self.first: int | None = None
-        self.online = False
+        #: The scale held, its variance, and the landmarks (N, 3) and their joint
+        #: covariance (3N, 3N) it was read from (:meth:`hold`); None until held.
+        self.scale: float | None = None
+        self.variance: float | None = None
+        self._held: tuple[np.ndarray, np.ndarray] | None = None
         self._factor: gtsam.CustomFactor | None = None
         self._inputs = (m, float(sigma), np.asarray(normal, dtype=float), float(distance))
         self.stiffness = float(stiffness)
@@ -169,14 +187,21 @@ class FirstFrameGauge:
         self.coefficients = -np.einsum("ab,nbc,dc->nad", self.covariance, AtW, E)
 
     def without(self, keys: Collection[int]) -> FirstFrameGauge | None:
-        """The gauge of the points not in ``keys`` (rejected tracks), or None when fewer
-        than :data:`MIN_GAUGE_POINTS` remain."""
+        """The gauge of the points not in ``keys`` (rejected tracks: off the plane, their
+        back-projection is no plane point), held at the same estimate if this one is; None
+        when fewer than :data:`MIN_GAUGE_POINTS` remain."""
         kept = [i for i, key in enumerate(self.keys) if key not in keys]
         if len(kept) < MIN_GAUGE_POINTS:
             return None
         m, sigma, normal, distance = self._inputs
         keep = [self.keys[i] for i in kept]
-        return FirstFrameGauge(keep, m[kept], sigma, normal, distance, stiffness=self.stiffness)
+        gauge = FirstFrameGauge(keep, m[kept], sigma, normal, distance, stiffness=self.stiffness)
+        gauge.first = self.first
+        if self._held is not None:
+            landmarks, covariance = self._held
+            rows = (3 * np.asarray(kept)[:, None] + np.arange(3)).ravel()
+            gauge.hold(landmarks[kept], covariance[np.ix_(rows, rows)])
+        return gauge
 
     def similarity(self, landmarks: np.ndarray) -> np.ndarray:
         """g (4,) = (t_a, t_b, theta, s) of landmarks (N, 3) (rows in the order of
@@ -184,22 +209,36 @@ class FirstFrameGauge:
         offsets = self.points - np.asarray(landmarks, dtype=float).reshape(-1, 3)
         return -np.einsum("nad,nd->a", self.coefficients, offsets)
 
+    def hold(self, landmarks: np.ndarray, covariance: np.ndarray) -> None:
+        """Hold the scale of the estimate ``landmarks`` (N, 3) whose joint covariance is
+        ``covariance`` (3N, 3N): :attr:`scale` = s(L), :attr:`variance` = c_s^T Sigma c_s."""
+        landmarks = np.asarray(landmarks, dtype=float).reshape(-1, 3)
+        covariance = np.asarray(covariance, dtype=float)
+        c = self.coefficients[:, 3, :].ravel()
+        self.scale = float(self.similarity(landmarks)[3])
+        self.variance = float(c @ covariance @ c)
+        self._held = (landmarks, covariance)
+        self._factor = None
+
     def factor(self) -> gtsam.CustomFactor:
-        """The factor g(L) = 0 with standard deviations sqrt(diag Sigma_g) / stiffness (a
-        Gaussian of covariance Sigma_g / stiffness^2): linear in the landmarks."""
-        noise = gtsam.noiseModel.Gaussian.Covariance(self.covariance / self.stiffness**2)
-        coefficients, points = self.coefficients, self.points
-
-        def error(
-            this: gtsam.CustomFactor, values: gtsam.Values, jacobians: list | None
-        ) -> np.ndarray:
-            landmarks = np.array([values.atPoint3(key) for key in this.keys()])
-            if jacobians is not None:
-                for i in range(len(jacobians)):
-                    jacobians[i] = coefficients[i]
-            return np.einsum("nad,nd->a", coefficients, landmarks - points)
-
+        """The factor s(L) = :attr:`scale`, standard deviation sqrt(:attr:`variance`) /
+        stiffness: linear in the landmarks (one object per hold)."""
+        if self.scale is None or self.variance is None:
+            raise ValueError("first-frame gauge: hold() it first")
         if self._factor is None:
+            sigma = np.sqrt(self.variance) / self.stiffness
+            noise = gtsam.noiseModel.Isotropic.Sigma(1, sigma)
+            coefficients, points, scale = self.coefficients[:, 3:], self.points, self.scale
+
+            def error(
+                this: gtsam.CustomFactor, values: gtsam.Values, jacobians: list | None
+            ) -> np.ndarray:
+                landmarks = np.array([values.atPoint3(key) for key in this.keys()])
+                if jacobians is not None:
+                    for i in range(len(jacobians)):
+                        jacobians[i] = coefficients[i]
+                return np.einsum("nad,nd->a", coefficients, landmarks - points) - scale
+
             self._factor = gtsam.CustomFactor(noise, self.keys, error)
         return self._factor
 
@@ -217,55 +256,78 @@ class FirstFrameGauge:
         return J
 
     def inflate(self, covariance: np.ndarray, pose: gtsam.Pose3, twist: np.ndarray) -> np.ndarray:
-        """``covariance`` (12, 12) of a frame after the first plus the similarity's share
-        J Sigma_g J^T (:meth:`jacobian`)."""
-        J = self.jacobian(pose, twist)
-        return np.asarray(covariance, dtype=float) + J @ self.covariance @ J.T
+        """``covariance`` (12, 12) of a frame after the first plus the held scale's share
+        variance j j^T (j: the scale's column of :meth:`jacobian`)."""
+        if self.variance is None:
+            return np.asarray(covariance, dtype=float)
+        j = self.jacobian(pose, twist)[:, 3]
+        return np.asarray(covariance, dtype=float) + self.variance * np.outer(j, j)
 
 
-def hold_first_frame(
-    backend: Backend,
-    graph: gtsam.NonlinearFactorGraph,
+def first_frame_gauge(
     index: int,
     added: Sequence[tuple[int, int, np.ndarray]],
     points: PointObservations | None,
 ) -> FirstFrameGauge | None:
     """The gauge of the first frame ``index`` from its observations ``added`` (track id,
-    landmark key, m), its factor added to ``graph`` (the online problem: the batch and
-    fixed-lag solvers) and to the final solve's store (the default solver's final solve:
-    its online window, marginalized every 30 frames, is left as it is); None (nothing
-    held) below :data:`MIN_GAUGE_POINTS` landmarks or without points."""
+    landmark key, m); None (nothing will be held) without points or below
+    :data:`MIN_GAUGE_POINTS` landmarks."""
     if points is None or len(added) < MIN_GAUGE_POINTS:
         return None
     keys = [key for _, key, _ in added]
     m = np.array([m for _, _, m in added])
     gauge = FirstFrameGauge(keys, m, float(points.sigma), points.normal, float(points.distance))
     gauge.first = int(index)
-    gauge.online = not isinstance(backend, WindowIsam2Backend)
-    if gauge.online:
-        graph.add(gauge.factor())
-    backend.store.add_landmark(keys[0], gauge.factor())
+    return gauge
+
+
+def hold_scale(gauge: FirstFrameGauge | None, backend: Backend) -> FirstFrameGauge | None:
+    """Read the map's scale and its variance from the optimum of ``backend``'s frames so
+    far (call it after :data:`HOLD_AFTER` frames: the same optimum for the default and
+    the batch solver) and hold it in the final solve: the default solver's store (its
+    online window is left as it is) or the batch solver's graph. The fixed-lag solver's
+    online estimates are its final ones: nothing is held there (None)."""
+    if gauge is None:
+        return None
+    if isinstance(backend, BatchBackend):
+        graph = backend.graph
+    elif isinstance(backend, WindowIsam2Backend):
+        graph = backend.store.whole_graph()
+    else:
+        return None
+    values = backend.values()  # the optimum of the frames so far (solved, then kept)
+    # One ISAM2 elimination at it gives the joint marginal (as batch_marginals does); its
+    # linearization point is held so the custom factors are not handed copies.
+    isam = gtsam.ISAM2()
+    theta = isam.getLinearizationPoint()
+    isam.update(graph, values)
+    covariance = isam.jointMarginalCovariance(gauge.keys).fullMatrix()
+    del theta
+    gauge.hold(np.array([values.atPoint3(key) for key in gauge.keys]), covariance)
+    if isinstance(backend, BatchBackend):
+        backend.graph.add(gauge.factor())
+        backend._result = None  # the hold changes the optimum
+    else:
+        backend.store.add_landmark(gauge.keys[0], gauge.factor())
     return gauge
 
 
 def release_tracks(
     gauge: FirstFrameGauge | None, backend: Backend, dropped: Collection[int]
 ) -> FirstFrameGauge | None:
-    """The gauge once the landmarks ``dropped`` (rejected tracks: off the plane, so their
-    back-projection is no plane point) have left ``backend``'s final solve: rebuilt from
-    the other first-frame points, its factor in place of the old one (None: too few left,
-    nothing held). The fixed-lag solver's frames are final: its gauge stays."""
-    if gauge is None or not set(gauge.keys) & set(dropped):
-        return gauge
-    if not isinstance(backend, (BatchBackend, WindowIsam2Backend)):
+    """The gauge once the landmarks ``dropped`` (rejected tracks) have left ``backend``'s
+    final solve: rebuilt from the other first-frame points at the same estimate
+    (:meth:`FirstFrameGauge.without`), its factor in place of the old one (None: too few
+    left, nothing held)."""
+    if gauge is None or gauge.scale is None or not set(gauge.keys) & set(dropped):
         return gauge
     old = gauge.factor()
-    for factors in backend.store.landmarks.values():
-        factors[:] = [factor for factor in factors if factor is not old]
+    if isinstance(backend, WindowIsam2Backend):
+        for factors in backend.store.landmarks.values():
+            factors[:] = [factor for factor in factors if factor is not old]
     new = gauge.without(dropped)
     if new is None:
         return None
-    new.first, new.online = gauge.first, gauge.online
     if isinstance(backend, BatchBackend):
         backend.graph.add(new.factor())  # drop_landmarks took the old one out
     else:
@@ -279,12 +341,10 @@ def with_nuisance(
     covariance: np.ndarray | None,
     pose: gtsam.Pose3,
     twist: np.ndarray,
-    *,
-    online: bool = False,
 ) -> np.ndarray | None:
-    """Frame ``index``'s ``covariance`` (12, 12) with the similarity's share added
-    (:meth:`FirstFrameGauge.inflate`); unchanged without a gauge, for the first frame (the
-    world), or ``online`` when the online graph does not hold the gauge."""
-    if gauge is None or covariance is None or index == gauge.first or (online and not gauge.online):
+    """Frame ``index``'s final ``covariance`` (12, 12) with the held scale's share added
+    (:meth:`FirstFrameGauge.inflate`); unchanged when nothing is held or for the first
+    frame (the world)."""
+    if gauge is None or gauge.scale is None or covariance is None or index == gauge.first:
         return covariance
     return gauge.inflate(covariance, pose, twist)

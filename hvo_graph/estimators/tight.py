@@ -293,14 +293,15 @@ class TightSmoother(Estimator):
                 pose_guess = self._pose.compose(step)
         new = self._observe(graph, values, k, pose_guess, points) if points is not None else []
         if not self._indices:  # the first frame holds the map's similarity (plane_gauge)
-            self.gauge = plane_gauge.hold_first_frame(self.backend, graph, k, new, points)
+            self.gauge = plane_gauge.first_frame_gauge(k, new, points)
         values.insert(X(k), pose_guess)
         values.insert(V(k), twist_guess)
         self._indices.append(k)
         self._times.append(t)
         self._tracks_checked = False
         pose, twist, covariance = self.backend.add(graph, values, k, t - self._times[0])
-        covariance = plane_gauge.with_nuisance(self.gauge, k, covariance, pose, twist, online=True)
+        if len(self._indices) == plane_gauge.HOLD_AFTER:  # the scale is in: hold it
+            self.gauge = plane_gauge.hold_scale(self.gauge, self.backend)
         self._pose, self._twist = pose, np.asarray(twist, dtype=float)
         if new:
             self._observations.append(
