@@ -28,9 +28,9 @@ similarity that maps the landmarks onto the b_j is
 its covariance from the first frame alone, J the quarter turn about n*, c the weighted
 centroid), and the scale is its last component s(L) = c_s^T (L - b). Its variance at
 the hold, c_s^T Sigma_L c_s from the joint marginal of those landmarks, is what the
-graph no longer carries: :meth:`FirstFrameGauge.inflate` adds it back to each frame's
-covariance through that frame's Jacobian with respect to s (a nuisance shared by every
-frame; its correlation with the rest is neglected, a first-order approximation).
+graph no longer carries: :func:`add_scale_share` adds it back to each frame's
+covariance through that frame's sensitivity to the held value (a nuisance shared by
+every frame, first order: :meth:`FirstFrameGauge.sensitivities`).
 Holding the shift and turn too, or the scale at the first frame's back-projection
 alone, threw away the motion model's information next to X(k0): 3-4 % larger position
 errors on the paper scenario's 10 s runs.
@@ -42,6 +42,7 @@ from collections.abc import Collection, Sequence
 
 import gtsam
 import numpy as np
+from gtsam.symbol_shorthand import V, X
 
 from hvo_graph.errors import InputError
 from hvo_graph.estimators.solvers import Backend, BatchBackend
@@ -53,12 +54,12 @@ __all__ = [
     "HOLD_AFTER",
     "MIN_GAUGE_POINTS",
     "FirstFrameGauge",
+    "add_scale_share",
     "first_frame_gauge",
     "hold_scale",
     "plane_axes",
     "plane_noise",
     "release_tracks",
-    "with_nuisance",
 ]
 
 #: How much stiffer than the estimate it holds the scale factor is (its standard
@@ -220,15 +221,17 @@ class FirstFrameGauge:
         self._held = (landmarks, covariance)
         self._factor = None
 
-    def factor(self) -> gtsam.CustomFactor:
-        """The factor s(L) = :attr:`scale`, standard deviation sqrt(:attr:`variance`) /
-        stiffness: linear in the landmarks (one object per hold)."""
+    def factor(self, offset: float = 0.0) -> gtsam.CustomFactor:
+        """The factor s(L) = :attr:`scale` (+ ``offset``), standard deviation
+        sqrt(:attr:`variance`) / stiffness: linear in the landmarks (one object per hold;
+        a new one for an offset)."""
         if self.scale is None or self.variance is None:
             raise ValueError("first-frame gauge: hold() it first")
-        if self._factor is None:
+        if self._factor is None or offset:
             sigma = np.sqrt(self.variance) / self.stiffness
             noise = gtsam.noiseModel.Isotropic.Sigma(1, sigma)
-            coefficients, points, scale = self.coefficients[:, 3:], self.points, self.scale
+            coefficients, points = self.coefficients[:, 3:], self.points
+            scale = self.scale + offset
 
             def error(
                 this: gtsam.CustomFactor, values: gtsam.Values, jacobians: list | None
@@ -239,29 +242,45 @@ class FirstFrameGauge:
                         jacobians[i] = coefficients[i]
                 return np.einsum("nad,nd->a", coefficients, landmarks - points) - scale
 
-            self._factor = gtsam.CustomFactor(noise, self.keys, error)
+            factor = gtsam.CustomFactor(noise, self.keys, error)
+            if offset:
+                return factor
+            self._factor = factor
         return self._factor
 
-    def jacobian(self, pose: gtsam.Pose3, twist: np.ndarray) -> np.ndarray:
-        """(12, 4) derivative of [pose tangent (right perturbation, [w; v]); twist [w; v]]
-        with respect to g: the similarity moves p to c + (1 + s) Rot(n*, theta)(p - c) + E t
-        and turns R by Rot(n*, theta); it scales the body velocity by 1 + s."""
-        R = pose.rotation().matrix()
-        offset = np.asarray(pose.translation(), dtype=float) - self.center
-        n = self._inputs[2]
-        J = np.zeros((12, 4))
-        J[0:3, 2] = R.T @ n
-        J[3:6] = R.T @ np.column_stack((self.axes, np.cross(n, offset), offset))
-        J[9:12, 3] = np.asarray(twist, dtype=float)[3:]
-        return J
-
-    def inflate(self, covariance: np.ndarray, pose: gtsam.Pose3, twist: np.ndarray) -> np.ndarray:
-        """``covariance`` (12, 12) of a frame after the first plus the held scale's share
-        variance j j^T (j: the scale's column of :meth:`jacobian`)."""
+    def sensitivities(
+        self, graph: gtsam.NonlinearFactorGraph, values: gtsam.Values, indices: Sequence[int]
+    ) -> np.ndarray:
+        """(K, 12) derivative of each frame's [pose tangent (right perturbation, [w; v]);
+        twist] at the optimum ``values`` of ``graph`` (holding this gauge's factor) with
+        respect to the held scale: the Gauss-Newton step of the graph with the held value
+        moved by one standard deviation, less the step without (the optimum's own
+        tolerance), over that move. Far from the first frame it is the similarity's
+        derivative (the turn's and scale's moves of p about c, the scale's of the
+        velocity); next to it the motion model smooths the jump at X(k0) out."""
         if self.variance is None:
-            return np.asarray(covariance, dtype=float)
-        j = self.jacobian(pose, twist)[:, 3]
-        return np.asarray(covariance, dtype=float) + self.variance * np.outer(j, j)
+            raise ValueError("first-frame gauge: hold() it first")
+        others = gtsam.NonlinearFactorGraph()
+        for i in range(graph.size()):
+            factor = graph.at(i)
+            if factor is not None and not _holds(factor, self.keys):
+                others.add(factor)
+        step = float(np.sqrt(self.variance))
+        steps = []
+        for offset in (0.0, step):
+            shifted = gtsam.NonlinearFactorGraph(others)
+            shifted.add(self.factor(offset))
+            steps.append(shifted.linearize(values).optimize())
+        rows = np.empty((len(indices), 12))
+        for row, k in zip(rows, indices, strict=True):
+            row[:6] = steps[1].at(X(k)) - steps[0].at(X(k))
+            row[6:] = steps[1].at(V(k)) - steps[0].at(V(k))
+        return rows / step
+
+
+def _holds(factor: gtsam.NonlinearFactor, keys: list[int]) -> bool:
+    """Whether ``factor`` is a scale hold on ``keys`` (one row on exactly those landmarks)."""
+    return factor.dim() == 1 and list(factor.keys()) == keys
 
 
 def first_frame_gauge(
@@ -335,16 +354,22 @@ def release_tracks(
     return new
 
 
-def with_nuisance(
+def add_scale_share(
     gauge: FirstFrameGauge | None,
-    index: int,
-    covariance: np.ndarray | None,
-    pose: gtsam.Pose3,
-    twist: np.ndarray,
-) -> np.ndarray | None:
-    """Frame ``index``'s final ``covariance`` (12, 12) with the held scale's share added
-    (:meth:`FirstFrameGauge.inflate`); unchanged when nothing is held or for the first
-    frame (the world)."""
-    if gauge is None or gauge.scale is None or covariance is None or index == gauge.first:
-        return covariance
-    return gauge.inflate(covariance, pose, twist)
+    backend: Backend,
+    indices: Sequence[int],
+    covariances: np.ndarray | None,
+) -> None:
+    """Add the held scale's share variance j j^T to each frame's final covariance
+    ``covariances`` (K, 12, 12), in place (j: :meth:`FirstFrameGauge.sensitivities` at
+    ``backend``'s optimum); nothing when no scale is held (or no covariances)."""
+    if gauge is None or gauge.variance is None or covariances is None:
+        return
+    if isinstance(backend, BatchBackend):
+        graph = backend.graph
+    elif isinstance(backend, WindowIsam2Backend):
+        graph = backend.store.whole_graph()
+    else:
+        return
+    for i, j in enumerate(gauge.sensitivities(graph, backend.values(), indices)):
+        covariances[i] += gauge.variance * np.outer(j, j)

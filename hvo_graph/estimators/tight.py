@@ -487,9 +487,8 @@ class TightSmoother(Estimator):
                 positions[i] = pose.translation()
                 twists[i] = twist
                 if covariances is not None:
-                    covariances[i] = plane_gauge.with_nuisance(
-                        self.gauge, self._indices[i], cov, pose, twist
-                    )
+                    covariances[i] = cov
+            plane_gauge.add_scale_share(self.gauge, self.backend, self._indices, covariances)
         return Trajectory(
             t=np.array(self._times, dtype=float),
             rotations=rotations,
