@@ -20,6 +20,7 @@ from hvo_graph.estimators.plane_gauge import FirstFrameGauge
 from hvo_graph.estimators.tight import TightSmoother
 from hvo_graph.pipeline import measure, run_estimate
 from hvo_graph.sim.scenario import paper_scenario, simulate
+from hvo_graph.types import PointObservations
 
 NORMAL = np.array([0.1, -0.2, 1.0]) / np.linalg.norm([0.1, -0.2, 1.0])
 DISTANCE = 1.5
@@ -89,6 +90,13 @@ def test_bad_first_frames_are_refused():
         FirstFrameGauge(keys, seen(points), SIGMA, NORMAL, -DISTANCE)
     with pytest.raises(InputError, match="do not fix a similarity"):
         FirstFrameGauge(keys[:3], seen(points[[0, 0, 0]]), SIGMA, NORMAL, DISTANCE)
+    # in the smoother such a first frame holds nothing (the graph keeps its own scale)
+    observations = PointObservations(
+        ids=np.arange(3), m=seen(points[[0, 0, 0]]), sigma=SIGMA, normal=NORMAL, distance=DISTANCE
+    )
+    added = [(i, key, m) for i, (key, m) in enumerate(zip(keys, observations.m, strict=False))]
+    assert plane_gauge.first_frame_gauge(0, added, observations) is None
+    assert plane_gauge.first_frame_gauge(0, added[:2], observations) is None
 
 
 def spread_ratio(tight: TightSmoother, scenario) -> float:

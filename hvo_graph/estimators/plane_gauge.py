@@ -144,7 +144,7 @@ class FirstFrameGauge:
                 f"each, got {len(m)} points and {len(keys)} keys"
             )
         self.keys = [int(key) for key in keys]
-        #: The first frame's index (its pose is the world: no share of the scale).
+        #: The first frame's index (set by :func:`first_frame_gauge`).
         self.first: int | None = None
         #: The scale held, its variance, and the landmarks (N, 3) and their joint
         #: covariance (3N, 3N) it was read from (:meth:`hold`); None until held.
@@ -289,13 +289,16 @@ def first_frame_gauge(
     points: PointObservations | None,
 ) -> FirstFrameGauge | None:
     """The gauge of the first frame ``index`` from its observations ``added`` (track id,
-    landmark key, m); None (nothing will be held) without points or below
-    :data:`MIN_GAUGE_POINTS` landmarks."""
+    landmark key, m); None (nothing will be held) without points, below
+    :data:`MIN_GAUGE_POINTS` landmarks, or when they fix no similarity (all at one place)."""
     if points is None or len(added) < MIN_GAUGE_POINTS:
         return None
     keys = [key for _, key, _ in added]
     m = np.array([m for _, _, m in added])
-    gauge = FirstFrameGauge(keys, m, float(points.sigma), points.normal, float(points.distance))
+    try:
+        gauge = FirstFrameGauge(keys, m, float(points.sigma), points.normal, points.distance)
+    except InputError:  # degenerate first frame: the graph keeps its own scale
+        return None
     gauge.first = int(index)
     return gauge
 
