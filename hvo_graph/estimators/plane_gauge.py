@@ -146,11 +146,9 @@ class FirstFrameGauge:
         self.keys = [int(key) for key in keys]
         #: The first frame's index (set by :func:`first_frame_gauge`).
         self.first: int | None = None
-        #: The scale held, its variance, and the landmarks (N, 3) and their joint
-        #: covariance (3N, 3N) it was read from (:meth:`hold`); None until held.
+        #: The scale held and its variance (:meth:`hold`); None until held.
         self.scale: float | None = None
         self.variance: float | None = None
-        self._held: tuple[np.ndarray, np.ndarray] | None = None
         self._factor: gtsam.CustomFactor | None = None
         self._inputs = (m, float(sigma), np.asarray(normal, dtype=float), float(distance))
         self.stiffness = float(stiffness)
@@ -187,23 +185,6 @@ class FirstFrameGauge:
         # g(L) = Sigma_g sum_j A_j^T W_j E^T (b_j - L_j): its coefficient of L_j
         self.coefficients = -np.einsum("ab,nbc,dc->nad", self.covariance, AtW, E)
 
-    def without(self, keys: Collection[int]) -> FirstFrameGauge | None:
-        """The gauge of the points not in ``keys`` (rejected tracks: off the plane, their
-        back-projection is no plane point), held at the same estimate if this one is; None
-        when fewer than :data:`MIN_GAUGE_POINTS` remain."""
-        kept = [i for i, key in enumerate(self.keys) if key not in keys]
-        if len(kept) < MIN_GAUGE_POINTS:
-            return None
-        m, sigma, normal, distance = self._inputs
-        keep = [self.keys[i] for i in kept]
-        gauge = FirstFrameGauge(keep, m[kept], sigma, normal, distance, stiffness=self.stiffness)
-        gauge.first = self.first
-        if self._held is not None:
-            landmarks, covariance = self._held
-            rows = (3 * np.asarray(kept)[:, None] + np.arange(3)).ravel()
-            gauge.hold(landmarks[kept], covariance[np.ix_(rows, rows)])
-        return gauge
-
     def similarity(self, landmarks: np.ndarray) -> np.ndarray:
         """g (4,) = (t_a, t_b, theta, s) of landmarks (N, 3) (rows in the order of
         :attr:`keys`): the similarity that maps them onto the first frame's back-projection."""
@@ -218,7 +199,6 @@ class FirstFrameGauge:
         c = self.coefficients[:, 3, :].ravel()
         self.scale = float(self.similarity(landmarks)[3])
         self.variance = float(c @ covariance @ c)
-        self._held = (landmarks, covariance)
         self._factor = None
 
     def factor(self, offset: float = 0.0) -> gtsam.CustomFactor:
@@ -338,23 +318,16 @@ def release_tracks(
     gauge: FirstFrameGauge | None, backend: Backend, dropped: Collection[int]
 ) -> FirstFrameGauge | None:
     """The gauge once the landmarks ``dropped`` (rejected tracks) have left ``backend``'s
-    final solve: rebuilt from the other first-frame points at the same estimate
-    (:meth:`FirstFrameGauge.without`), its factor in place of the old one (None: too few
-    left, nothing held)."""
+    final solve: unchanged if none of them is the first frame's; else None, its factor
+    taken out (the scale read after the first frames was pulled by that off-plane point,
+    whose back-projection is no plane point: the graph keeps its own scale instead)."""
     if gauge is None or gauge.scale is None or not set(gauge.keys) & set(dropped):
         return gauge
-    old = gauge.factor()
+    old = gauge.factor()  # the batch solver's drop_landmarks took it out of its graph
     if isinstance(backend, WindowIsam2Backend):
         for factors in backend.store.landmarks.values():
             factors[:] = [factor for factor in factors if factor is not old]
-    new = gauge.without(dropped)
-    if new is None:
-        return None
-    if isinstance(backend, BatchBackend):
-        backend.graph.add(new.factor())  # drop_landmarks took the old one out
-    else:
-        backend.store.add_landmark(new.keys[0], new.factor())
-    return new
+    return None
 
 
 def add_scale_share(
