@@ -457,7 +457,7 @@ class TightSmoother(Estimator):
             self.track_chi2,
             skip=self._rejected_keys,
         )
-        plane_noise = self._plane_model(self._plane[0])
+        plane_noise = plane_gauge.plane_noise(self._plane[0], self.plane_sigma, IN_PLANE_SIGMA)
         failed = confirm_off_plane(backend, candidates, observed, plane_noise, self.track_chi2)
         for key in failed:
             track = self._key_track[key]
