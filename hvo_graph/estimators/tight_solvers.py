@@ -36,8 +36,11 @@ __all__ = [
 _LANDMARK = ord("l")
 
 
-def tight_isam2_params(threshold: float, skip: int) -> gtsam.ISAM2Params:
-    """ISAM2 parameters: poses and landmarks relinearize (every factor is affine in V)."""
+def tight_isam2_params(
+    threshold: float, skip: int, factorization: str = "QR"
+) -> gtsam.ISAM2Params:
+    """ISAM2 parameters: poses and landmarks relinearize (every factor is affine in V);
+    ``factorization`` "QR" or "CHOLESKY" (:class:`WindowIsam2Backend`)."""
     params = gtsam.ISAM2Params()
     thresholds = gtsam.ISAM2ThresholdMap()
     thresholds.insert(("x", np.full(6, threshold)))
@@ -47,8 +50,8 @@ def tight_isam2_params(threshold: float, skip: int) -> gtsam.ISAM2Params:
     params.relinearizeSkip = skip
     params.enablePartialRelinearizationCheck = True
     params.findUnusedFactorSlots = True
-    # QR: the world prior and the plane rows are far stiffer than the rest.
-    params.setFactorization("QR")
+    # QR by default: the world prior and the plane rows are far stiffer than the rest.
+    params.setFactorization(factorization)
     return params
 
 
@@ -101,6 +104,7 @@ class WindowIsam2Backend(Backend):
         pixel_noise: Callable[[float], gtsam.noiseModel.Base],
         chunk: int = CHUNK_FRAMES,
         overlap: int = CHUNK_OVERLAP,
+        fallback: gtsam.ISAM2Params | None = None,
     ) -> None:
         super().__init__(compute_covariance=compute_covariance)
         self.max_iterations = max_iterations
@@ -113,6 +117,9 @@ class WindowIsam2Backend(Backend):
         #: The largest move of each sweep of the last final solve (solve_in_chunks).
         self.moves: list[float] = []
         self.params = params
+        self._fallback = fallback
+        #: The updates since the ISAM2 was (re)built: replayed on a failure.
+        self._updates: list[tuple[gtsam.NonlinearFactorGraph, gtsam.Values]] = []
         self.window = int(window)
         self.isam = gtsam.ISAM2(params)
         # Held so the custom factors' callbacks are not handed copies (solvers docstring).
@@ -136,7 +143,7 @@ class WindowIsam2Backend(Backend):
     ) -> FrameValues:
         self.initial.insert(values)
         self._result = None
-        self.isam.update(graph, values)
+        self._update(graph, values)
         self.live.update(values.keys())
         self._frames.append((index, graph))
         pose = self.isam.calculateEstimatePose3(X(index))
@@ -148,6 +155,22 @@ class WindowIsam2Backend(Backend):
         if len(self._frames) >= 2 * self.window:
             self._rebuild()
         return pose, twist, covariance
+
+    def _update(self, graph: gtsam.NonlinearFactorGraph, values: gtsam.Values) -> None:
+        """``isam.update``; should its factorization find the system indeterminate (Cholesky
+        on a well-posed but badly scaled one), the updates since the ISAM2 was built are
+        replayed on a new one with the ``fallback`` parameters, kept from then on."""
+        self._updates.append((graph, values))
+        try:
+            self.isam.update(graph, values)
+        except RuntimeError:
+            if self._fallback is None:
+                raise
+            self.params, self._fallback = self._fallback, None
+            self.isam = gtsam.ISAM2(self.params)
+            self.theta = self.isam.getLinearizationPoint()
+            for update in self._updates:
+                self.isam.update(*update)
 
     def online_graph(self) -> gtsam.NonlinearFactorGraph:
         """The online problem's factors: the prior of the older frames and the recent
@@ -211,7 +234,8 @@ class WindowIsam2Backend(Backend):
         start = gtsam.NonlinearFactorGraph()
         start.push_back(summary)
         start.push_back(newer)  # holds the carried factors too
-        self.isam.update(start, values)
+        self._updates = []
+        self._update(start, values)
         # The frames' own factors are kept only for the next rebuild's split.
         self._frames = [(i, g) for (i, _), g in zip(kept, kept_graphs, strict=True)]
 
