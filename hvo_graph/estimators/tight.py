@@ -289,7 +289,7 @@ class TightSmoother(Estimator):
             else:
                 step = gtsam.Pose3.Expmap((0.5 * dt) * (self._twist + twist_guess))
                 pose_guess = self._pose.compose(step)
-        new = self._observe(graph, values, k, pose_guess, points) if points is not None else []
+        new = self._observe(graph, values, k, pose_guess, points) if points is not None else None
         values.insert(X(k), pose_guess)
         values.insert(V(k), twist_guess)
         self._indices.append(k)
@@ -297,16 +297,11 @@ class TightSmoother(Estimator):
         self._tracks_checked = False
         pose, twist, covariance = self.backend.add(graph, values, k, t - self._times[0])
         self._pose, self._twist = pose, np.asarray(twist, dtype=float)
-        if new:
-            self._observations.append(
-                (
-                    k,
-                    np.array([key for _, key, _ in new], dtype=np.uint64),
-                    np.array([m for _, _, m in new]),
-                    float(points.sigma),  # type: ignore[union-attr]
-                )
-            )
-            self._gate(pose, new, points.sigma)  # type: ignore[union-attr]
+        if new is not None and len(new[1]):
+            tracks, keys, m = new
+            sigma = float(points.sigma)  # type: ignore[union-attr]
+            self._observations.append((k, np.array(keys, dtype=np.uint64), m, sigma))
+            self._gate(pose, tracks, keys, m, sigma)
         return StateEstimate(
             index=k,
             t=t,
@@ -323,17 +318,18 @@ class TightSmoother(Estimator):
         k: int,
         pose_guess: gtsam.Pose3,
         points: PointObservations,
-    ) -> list[tuple[int, int, np.ndarray]]:
-        """Projection factors of the frame's points (new landmarks as needed); returns
-        (track id, landmark key, m) of each observation added."""
+    ) -> tuple[list[int], list[int], np.ndarray]:
+        """Projection factors of the frame's points (new landmarks as needed); returns the
+        track ids, landmark keys and m (N, 2) of the observations added."""
         anchor = not self._indices  # the first frame: Gaussian (module docstring)
         noise = self._pixel_noise_model(float(points.sigma), robust=not anchor)
         normal = np.asarray(points.normal, dtype=float)
         distance = float(points.distance)
         self._plane = (normal, distance)
-        added = []
         tracks, coordinates = self._admitted(np.asarray(points.ids), np.asarray(points.m, float))
-        for track, m in zip(tracks, coordinates, strict=True):
+        pose = X(k)
+        used, keys, rows = [], [], []
+        for i, (track, m) in enumerate(zip(tracks, coordinates, strict=True)):
             key = self._landmarks.get(track)
             if key is None or not self._live(key):
                 point = back_project(pose_guess, m, normal, distance)
@@ -347,14 +343,15 @@ class TightSmoother(Estimator):
                 values.insert(key, point)
                 graph.add(plane := gtsam.PriorFactorPoint3(key, point, self._plane_model(normal)))
                 self.backend.store.add_landmark(key, plane)  # the final solve's copy
-            graph.add(gtsam.GenericProjectionFactorCal3_S2(m, noise, X(k), key, _UNIT_CALIBRATION))
-            self.counts["observations"] += 1
-            added.append((track, key, m))
-        m = np.array([m for _, _, m in added])  # the final solve's copy, as numbers:
-        self.backend.store.add_observations(
-            [key for _, key, _ in added], m, float(points.sigma), robust=not anchor
-        )
-        return added
+            graph.add(gtsam.GenericProjectionFactorCal3_S2(m, noise, pose, key, _UNIT_CALIBRATION))
+            used.append(track)
+            keys.append(key)
+            rows.append(i)
+        self.counts["observations"] += len(keys)
+        m = coordinates if len(rows) == len(tracks) else coordinates[rows]
+        # the final solve's copy, as numbers:
+        self.backend.store.add_observations(keys, m, float(points.sigma), robust=not anchor)
+        return used, keys, m
 
     def _admitted(self, ids: np.ndarray, m: np.ndarray) -> tuple[list[int], np.ndarray]:
         """The frame's observations to use: not rejected, and at most ``max_landmarks``
@@ -413,19 +410,28 @@ class TightSmoother(Estimator):
         return np.asarray(self.backend.initial.atPoint3(key), dtype=float)  # type: ignore[attr-defined]
 
     def _gate(
-        self, pose: gtsam.Pose3, added: list[tuple[int, int, np.ndarray]], sigma: float
+        self,
+        pose: gtsam.Pose3,
+        tracks: list[int],
+        keys: list[int],
+        m: np.ndarray,
+        sigma: float,
     ) -> None:
-        """Count the observations whose whitened residual fails the chi^2 gate."""
+        """Count the observations (``tracks``, landmark ``keys``, m (N, 2)) whose whitened
+        residual fails the chi^2 gate."""
         R = pose.rotation().matrix()
         p = np.asarray(pose.translation(), dtype=float)
         # all observations at once: c = R^T (L - p) per row, in the camera frame
-        c = (np.array([self._point(key) for _, key, _ in added]) - p) @ R
-        m = np.array([m for _, _, m in added])
+        c = (np.array([self._point(key) for key in keys]) - p) @ R
         ahead = c[:, 2] > 1e-9
-        with np.errstate(divide="ignore", invalid="ignore"):  # behind the camera: inf
+        if ahead.all():
             r = (m - c[:, :2] / c[:, 2:]) / sigma
-        chi2s = np.where(ahead, np.einsum("ij,ij->i", r, r), math.inf).tolist()
-        for (track, key, _), chi2 in zip(added, chi2s, strict=True):
+            chi2s = np.einsum("ij,ij->i", r, r).tolist()
+        else:
+            with np.errstate(divide="ignore", invalid="ignore"):  # behind the camera: inf
+                r = (m - c[:, :2] / c[:, 2:]) / sigma
+            chi2s = np.where(ahead, np.einsum("ij,ij->i", r, r), math.inf).tolist()
+        for track, key, chi2 in zip(tracks, keys, chi2s, strict=True):
             if chi2 <= self.reject_chi2:
                 self._strikes.pop(track, None)
                 continue
