@@ -59,7 +59,7 @@ from gtsam.symbol_shorthand import L, V, X
 from hvo_graph.errors import InputError, as_integer, as_number
 from hvo_graph.estimators.base import Estimator
 from hvo_graph.estimators.choices import TIGHT_SOLVERS
-from hvo_graph.estimators.factors import motion_factor
+from hvo_graph.estimators.factors import _motion_factor
 from hvo_graph.estimators.landmarks import DEFAULT_MAX_LANDMARKS, back_project, farthest_points
 from hvo_graph.estimators.noise_estimation import ProcessNoiseSchedule
 from hvo_graph.estimators.plane_tracks import DEFAULT_TRACK_CHI2, off_plane_keys
@@ -199,9 +199,8 @@ class TightSmoother(Estimator):
                 compute_covariance=self.compute_covariance,
             )
         else:
-            # Cholesky: with 20 landmarks half the time of QR per update, same estimates to
-            # rounding; QR again where Cholesky finds the system indeterminate (a world
-            # prior 1e14 times stiffer than the first twist's, no pixels to bridge them).
+            # Cholesky: half QR's time per update at 20 landmarks, the same estimates to
+            # rounding; QR where it finds the system indeterminate (WindowIsam2Backend).
             self.backend = WindowIsam2Backend(
                 tight_isam2_params(threshold, skip, "CHOLESKY"),
                 max_iterations=max_iterations,
@@ -280,7 +279,8 @@ class TightSmoother(Estimator):
         else:
             previous, dt = self._indices[-1], t - self._times[-1]
             motion_noise, walk_noise = self._motion_noise(dt)
-            graph.add(motion_factor(X(previous), X(k), V(previous), V(k), dt, motion_noise))
+            # dt > 0 (checked above) and a 6-D noise: built unchecked.
+            graph.add(_motion_factor((X(previous), X(k), V(previous), V(k)), dt, motion_noise))
             graph.add(gtsam.BetweenFactorVector(V(previous), V(k), _ZERO6, walk_noise))
             store.add_motion(dt, self.acceleration_sigma)  # both, as numbers
             if frame.pose is not None:
@@ -298,10 +298,9 @@ class TightSmoother(Estimator):
         pose, twist, covariance = self.backend.add(graph, values, k, t - self._times[0])
         self._pose, self._twist = pose, np.asarray(twist, dtype=float)
         if new is not None and len(new[1]):
-            tracks, keys, m = new
             sigma = float(points.sigma)  # type: ignore[union-attr]
-            self._observations.append((k, np.array(keys, dtype=np.uint64), m, sigma))
-            self._gate(pose, tracks, keys, m, sigma)
+            self._observations.append((k, np.array(new[1], dtype=np.uint64), new[2], sigma))
+            self._gate(pose, new, sigma)
         return StateEstimate(
             index=k,
             t=t,
@@ -348,8 +347,7 @@ class TightSmoother(Estimator):
             keys.append(key)
             rows.append(i)
         self.counts["observations"] += len(keys)
-        m = coordinates if len(rows) == len(tracks) else coordinates[rows]
-        # the final solve's copy, as numbers:
+        m = coordinates if len(rows) == len(tracks) else coordinates[rows]  # the final solve's:
         self.backend.store.add_observations(keys, m, float(points.sigma), robust=not anchor)
         return used, keys, m
 
@@ -409,28 +407,18 @@ class TightSmoother(Estimator):
             return np.asarray(isam.calculateEstimatePoint3(key), dtype=float)
         return np.asarray(self.backend.initial.atPoint3(key), dtype=float)  # type: ignore[attr-defined]
 
-    def _gate(
-        self,
-        pose: gtsam.Pose3,
-        tracks: list[int],
-        keys: list[int],
-        m: np.ndarray,
-        sigma: float,
-    ) -> None:
-        """Count the observations (``tracks``, landmark ``keys``, m (N, 2)) whose whitened
+    def _gate(self, pose: gtsam.Pose3, added: tuple[list, list, np.ndarray], sigma: float) -> None:
+        """Count the observations (track ids, landmark keys, m (N, 2)) whose whitened
         residual fails the chi^2 gate."""
+        tracks, keys, m = added
         R = pose.rotation().matrix()
         p = np.asarray(pose.translation(), dtype=float)
         # all observations at once: c = R^T (L - p) per row, in the camera frame
         c = (np.array([self._point(key) for key in keys]) - p) @ R
         ahead = c[:, 2] > 1e-9
-        if ahead.all():
+        with np.errstate(divide="ignore", invalid="ignore"):  # behind the camera: inf
             r = (m - c[:, :2] / c[:, 2:]) / sigma
-            chi2s = np.einsum("ij,ij->i", r, r).tolist()
-        else:
-            with np.errstate(divide="ignore", invalid="ignore"):  # behind the camera: inf
-                r = (m - c[:, :2] / c[:, 2:]) / sigma
-            chi2s = np.where(ahead, np.einsum("ij,ij->i", r, r), math.inf).tolist()
+        chi2s = np.where(ahead, np.einsum("ij,ij->i", r, r), math.inf).tolist()
         for track, key, chi2 in zip(tracks, keys, chi2s, strict=True):
             if chi2 <= self.reject_chi2:
                 self._strikes.pop(track, None)

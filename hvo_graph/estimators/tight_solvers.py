@@ -36,9 +36,7 @@ __all__ = [
 _LANDMARK = ord("l")
 
 
-def tight_isam2_params(
-    threshold: float, skip: int, factorization: str = "QR"
-) -> gtsam.ISAM2Params:
+def tight_isam2_params(threshold: float, skip: int, factorization: str = "QR") -> gtsam.ISAM2Params:
     """ISAM2 parameters: poses and landmarks relinearize (every factor is affine in V);
     ``factorization`` "QR" or "CHOLESKY" (:class:`WindowIsam2Backend`)."""
     params = gtsam.ISAM2Params()
@@ -195,6 +193,10 @@ class WindowIsam2Backend(Backend):
         # back into its kept frame's graph).
         for j, graph in enumerate([self._prior, *(g for _, g in old), *(g for _, g in kept)]):
             own = carried if j <= len(old) else gtsam.NonlinearFactorGraph()
+            if j > len(old) and dropped.isdisjoint(graph.keyVector()):  # a kept frame's own
+                newer.push_back(graph)
+                kept_graphs.append(graph)
+                continue
             for n in range(graph.size()):
                 factor = graph.at(n)
                 if dropped.intersection(factor.keys()):
