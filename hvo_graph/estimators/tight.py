@@ -399,13 +399,15 @@ class TightSmoother(Estimator):
         isam = getattr(self.backend, "isam", None)
         return True if isam is None else bool(isam.valueExists(key))
 
-    def _point(self, key: int) -> np.ndarray:
-        """The current estimate of landmark ``key``."""
-        isam = getattr(self.backend, "isam", None)
-        live = getattr(self.backend, "live", None)
-        if isam is not None and (live is None or key in live):
-            return np.asarray(isam.calculateEstimatePoint3(key), dtype=float)
-        return np.asarray(self.backend.initial.atPoint3(key), dtype=float)  # type: ignore[attr-defined]
+    def _points(self, keys: list[int]) -> np.ndarray:
+        """(N, 3) the current estimates of the landmarks ``keys``."""
+        isam, live = getattr(self.backend, "isam", None), getattr(self.backend, "live", None)
+        if isam is None:
+            return np.array([self.backend.initial.atPoint3(key) for key in keys])  # type: ignore[attr-defined]
+        if live is None or live.issuperset(keys):
+            return np.array([isam.calculateEstimatePoint3(key) for key in keys])
+        at = self.backend.initial.atPoint3  # type: ignore[attr-defined]  # left the window
+        return np.array([isam.calculateEstimatePoint3(k) if k in live else at(k) for k in keys])
 
     def _gate(self, pose: gtsam.Pose3, added: tuple[list, list, np.ndarray], sigma: float) -> None:
         """Count the observations (track ids, landmark keys, m (N, 2)) whose whitened
@@ -414,7 +416,7 @@ class TightSmoother(Estimator):
         R = pose.rotation().matrix()
         p = np.asarray(pose.translation(), dtype=float)
         # all observations at once: c = R^T (L - p) per row, in the camera frame
-        c = (np.array([self._point(key) for key in keys]) - p) @ R
+        c = (self._points(keys) - p) @ R
         ahead = c[:, 2] > 1e-9
         with np.errstate(divide="ignore", invalid="ignore"):  # behind the camera: inf
             r = (m - c[:, :2] / c[:, 2:]) / sigma
