@@ -83,6 +83,12 @@ class WindowIsam2Backend(Backend):
     is bounded, the rebuild amortized over ``window`` frames. Landmarks only the older
     frames saw leave the online problem (:attr:`live`).
 
+    ``params`` may ask for Cholesky (:func:`tight_isam2_params`; the smoother's default:
+    half QR's time per update with 20 landmarks): should an update find the system
+    indeterminate (a world prior 1e14 times stiffer than the first twist's, no pixels
+    between them), the updates since the ISAM2 was built are replayed on a new one with
+    ``fallback`` (QR), kept from then on: the estimates of QR all along.
+
     Final (:meth:`final`): every factor, kept as numbers in :attr:`store` (filled by
     the smoother), solved from each variable's estimate as it left the window (a
     landmark's carries all its observations) in chunks of ``chunk`` frames sharing
