@@ -344,7 +344,10 @@ def _extrapolation(previous: np.ndarray | None, vector: np.ndarray) -> float:
     if previous is None:
         return 1.0
     norms = float(np.linalg.norm(previous)) * float(np.linalg.norm(vector))
-    if norms == 0.0 or float(previous @ vector) < EXTRAPOLATE_COSINE * norms:
+    # einsum, not BLAS: OpenBLAS splits a dot this long (12 numbers per frame) over
+    # threads, whose start-up took milliseconds per call on a loaded machine.
+    inner = float(np.einsum("i,i->", previous, vector))
+    if norms == 0.0 or inner < EXTRAPOLATE_COSINE * norms:
         return 1.0
     ratio = float(np.linalg.norm(vector) / np.linalg.norm(previous))
     return 1.0 / (1.0 - ratio) if ratio < MAX_RATIO else 1.0
