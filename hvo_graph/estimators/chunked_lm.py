@@ -33,6 +33,7 @@ the whole graph per iteration.
 
 from __future__ import annotations
 
+import math
 from typing import TYPE_CHECKING
 
 import gtsam
@@ -116,14 +117,15 @@ class _Chunks:
 
     def graph(self, c: int) -> gtsam.NonlinearFactorGraph:
         """Chunk ``c``'s factors (those whose newest frame is in it; in the first chunk,
-        the landmarks' own factors too)."""
+        the landmarks' own factors too). The last chunk's are kept too: every step builds
+        them (their solve ends the forward pass), so keeping them adds one chunk's factors."""
         graph = self.graphs.get(c)
         if graph is None:
             first, stop = self.ranges[c]
             graph = self.store.graph(first, stop, newest=True)[0]
             if c == 0:
                 graph.push_back(self.store.landmark_graph())
-            if c < self.cached:
+            if c < self.cached or c == len(self.ranges) - 1:
                 self.graphs[c] = graph
         return graph
 
@@ -343,11 +345,14 @@ def _extrapolation(previous: np.ndarray | None, vector: np.ndarray) -> float:
     by rho < 1 in about the same direction (1: no extrapolation)."""
     if previous is None:
         return 1.0
-    norms = float(np.linalg.norm(previous)) * float(np.linalg.norm(vector))
-    # einsum, not BLAS: OpenBLAS splits a dot this long (12 numbers per frame) over
-    # threads, whose start-up took milliseconds per call on a loaded machine.
-    inner = float(np.einsum("i,i->", previous, vector))
+    # einsum, not BLAS (np.linalg.norm, @): OpenBLAS splits a dot this long (12 numbers
+    # per frame) over threads, whose start-up took milliseconds per call on a loaded machine.
+    inner, before, after = (
+        float(np.einsum("i,i->", a, b))
+        for a, b in ((previous, vector), (previous, previous), (vector, vector))
+    )
+    norms = math.sqrt(before) * math.sqrt(after)
     if norms == 0.0 or inner < EXTRAPOLATE_COSINE * norms:
         return 1.0
-    ratio = float(np.linalg.norm(vector) / np.linalg.norm(previous))
+    ratio = math.sqrt(after) / math.sqrt(before)
     return 1.0 / (1.0 - ratio) if ratio < MAX_RATIO else 1.0
