@@ -83,11 +83,11 @@ class WindowIsam2Backend(Backend):
     is bounded, the rebuild amortized over ``window`` frames. Landmarks only the older
     frames saw leave the online problem (:attr:`live`).
 
-    ``params`` may ask for Cholesky (:func:`tight_isam2_params`; the smoother's default:
-    half QR's time per update with 20 landmarks): should an update find the system
-    indeterminate (a world prior 1e14 times stiffer than the first twist's, no pixels
-    between them), the updates since the ISAM2 was built are replayed on a new one with
-    ``fallback`` (QR), kept from then on: the estimates of QR all along.
+    The first ISAM2 (the world prior, 1e14 times stiffer than the first twist's, with
+    perhaps no pixels yet between them) uses ``params`` (QR); the rebuilt ones may use
+    ``rebuilt`` (Cholesky: half QR's time per update with 20 landmarks, the same
+    estimates to rounding). Should an update find the system indeterminate, the updates
+    since that ISAM2 was built are replayed on one with ``params``, kept from then on.
 
     Final (:meth:`final`): every factor, kept as numbers in :attr:`store` (filled by
     the smoother), solved from each variable's estimate as it left the window (a
@@ -108,7 +108,7 @@ class WindowIsam2Backend(Backend):
         pixel_noise: Callable[[float], gtsam.noiseModel.Base],
         chunk: int = CHUNK_FRAMES,
         overlap: int = CHUNK_OVERLAP,
-        fallback: gtsam.ISAM2Params | None = None,
+        rebuilt: gtsam.ISAM2Params | None = None,
     ) -> None:
         super().__init__(compute_covariance=compute_covariance)
         self.max_iterations = max_iterations
@@ -121,7 +121,8 @@ class WindowIsam2Backend(Backend):
         #: The largest move of each sweep of the last final solve (solve_in_chunks).
         self.moves: list[float] = []
         self.params = params
-        self._fallback = fallback
+        self.rebuilt = params if rebuilt is None else rebuilt
+        self._current = params  # those of the ISAM2 now
         #: The updates since the ISAM2 was (re)built: replayed on a failure.
         self._updates: list[tuple[gtsam.NonlinearFactorGraph, gtsam.Values]] = []
         self.window = int(window)
@@ -161,16 +162,16 @@ class WindowIsam2Backend(Backend):
         return pose, twist, covariance
 
     def _update(self, graph: gtsam.NonlinearFactorGraph, values: gtsam.Values) -> None:
-        """``isam.update``; should its factorization find the system indeterminate (Cholesky
-        on a well-posed but badly scaled one), the updates since the ISAM2 was built are
-        replayed on a new one with the ``fallback`` parameters, kept from then on."""
+        """``isam.update``; should a rebuilt ISAM2 find the system indeterminate (Cholesky on a
+        well-posed but badly scaled one), the updates since it was built are replayed on a
+        new one with ``params``, kept from then on."""
         self._updates.append((graph, values))
         try:
             self.isam.update(graph, values)
         except RuntimeError:
-            if self._fallback is None:
+            if self._current is self.params:
                 raise
-            self.params, self._fallback = self._fallback, None
+            self.rebuilt = self._current = self.params
             self.isam = gtsam.ISAM2(self.params)
             self.theta = self.isam.getLinearizationPoint()
             for update in self._updates:
@@ -237,7 +238,8 @@ class WindowIsam2Backend(Backend):
         values = gtsam.Values()
         for key in kept_keys:
             copy_value(estimate, values, key)
-        self.isam = gtsam.ISAM2(self.params)
+        self._current = self.rebuilt
+        self.isam = gtsam.ISAM2(self._current)
         self.theta = self.isam.getLinearizationPoint()
         start = gtsam.NonlinearFactorGraph()
         start.push_back(summary)
