@@ -24,6 +24,7 @@ from hvo_graph.estimators.least_squares import levenberg_marquardt
 from hvo_graph.estimators.registry import build_estimator
 from hvo_graph.estimators.smoother import FactorGraphSmoother
 from hvo_graph.estimators.tight import TightSmoother, back_project
+from hvo_graph.estimators.tight_solvers import WindowIsam2Backend, tight_isam2_params
 from hvo_graph.eval.consistency import trajectory_nees
 from hvo_graph.eval.metrics import error_series, summarize
 from hvo_graph.frontend import FrontEndConfig, measure_sequence
@@ -158,6 +159,31 @@ def test_online_window_keeps_the_information_of_older_frames():
         # The prior is linearized at the online estimates of its time (mm from the final
         # optimum): agreement to second order, far inside the pose error (~6 mm).
         np.testing.assert_allclose(pose.translation(), whole.positions[k], atol=2e-4)
+
+
+def test_an_update_cholesky_finds_indeterminate_is_replayed_with_qr():
+    """The first 14 frames without points: the first rebuilt ISAM2's Cholesky finds the
+    marginal of the world prior (1e-6) and the first twist's (10), with only the motion
+    model between them, indeterminate. Its updates are replayed with QR: the estimates of
+    a back end on QR throughout, to the bit."""
+    scenario = simulate(paper_scenario(duration=2.0, num_points=6))
+    frames = [
+        dataclasses.replace(f, points=None) if f.index < 14 else f for f in frames_of(scenario)
+    ]
+    tight = TightSmoother()
+    smoothed = tight.run(frames)
+    assert tight.backend.rebuilt.getFactorization() == "QR"  # switched from Cholesky
+    reference = TightSmoother()
+    reference.backend = WindowIsam2Backend(
+        tight_isam2_params(0.05, 10),
+        max_iterations=100,
+        compute_covariance=False,
+        pixel_noise=reference._pixel_noise_model,
+    )
+    np.testing.assert_array_equal(smoothed.positions, reference.run(frames).positions)
+    online = tight.online_trajectory()
+    np.testing.assert_array_equal(online.positions, reference.online_trajectory().positions)
+    np.testing.assert_array_equal(online.rotations, reference.online_trajectory().rotations)
 
 
 def test_off_plane_track_is_rejected():

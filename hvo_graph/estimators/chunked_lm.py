@@ -33,6 +33,7 @@ the whole graph per iteration.
 
 from __future__ import annotations
 
+import math
 from typing import TYPE_CHECKING
 
 import gtsam
@@ -83,6 +84,32 @@ class _Chunks:
         for key in store.landmarks:
             self.leaving[min(last.get(key, 0) // chunk, len(self.ranges) - 1)].append(key)
         self.dims = {key: 3 for key in store.landmarks}
+        # The cached chunks' values at the current iterate, and moved by the last step
+        # (per multiple tried): an accepted step's are the next iterate's, so the values
+        # are not picked out again key by key at every step.
+        self.subsets: dict[int, gtsam.Values] = {}
+        self.moved: dict[int, dict[float, gtsam.Values]] = {}
+
+    def accept(self, scale: float) -> None:
+        """The last step was taken, times ``scale``: its moved values are the new iterate's."""
+        self.subsets = {c: moved[scale] for c, moved in self.moved.items()}
+
+    def _error(
+        self,
+        c: int,
+        graph: gtsam.NonlinearFactorGraph,
+        values: gtsam.Values,
+        delta: gtsam.VectorValues,
+        scales: tuple[float, ...],
+    ) -> np.ndarray:
+        """Chunk ``c``'s error after the step ``delta`` times each of ``scales``."""
+        subset = self.subsets.get(c)
+        if subset is None:
+            subset = _subset(values, graph)
+        errors, moved = _graph_error(graph, subset, delta, scales)
+        if c < self.cached:
+            self.moved[c] = dict(zip(scales, moved, strict=True))
+        return errors
 
     def error(self, values: gtsam.Values) -> float:
         """The whole graph's error at ``values``, one chunk's factors at a time."""
@@ -90,14 +117,15 @@ class _Chunks:
 
     def graph(self, c: int) -> gtsam.NonlinearFactorGraph:
         """Chunk ``c``'s factors (those whose newest frame is in it; in the first chunk,
-        the landmarks' own factors too)."""
+        the landmarks' own factors too). The last chunk's are kept too: every step builds
+        them (their solve ends the forward pass), so keeping them adds one chunk's factors."""
         graph = self.graphs.get(c)
         if graph is None:
             first, stop = self.ranges[c]
             graph = self.store.graph(first, stop, newest=True)[0]
             if c == 0:
                 graph.push_back(self.store.landmark_graph())
-            if c < self.cached:
+            if c < self.cached or c == len(self.ranges) - 1:
                 self.graphs[c] = graph
         return graph
 
@@ -144,6 +172,7 @@ class _Chunks:
         graph's error after it and, for ``scale`` != 1, after it times ``scale``."""
         root = float(np.sqrt(lam))
         self.linearized.clear()
+        self.moved = {}
         incoming = []
         nets: dict[int, gtsam.GaussianBayesNet] = {}
         parents: dict[int, list[int]] = {}
@@ -164,7 +193,7 @@ class _Chunks:
         linear.push_back(carried)
         delta = linear.optimize(self.ordering(last, keep_last=False))
         scales = (1.0,) if scale == 1.0 else (1.0, scale)
-        errors = _graph_error(nonlinear, values, delta, scales)
+        errors = self._error(last, nonlinear, values, delta, scales)
         for c in range(last - 1, -1, -1):
             ordering = self.ordering(c, keep_last=True)
             eliminated = [ordering.at(n) for n in range(ordering.size())]
@@ -186,7 +215,7 @@ class _Chunks:
                 delta.insert(key, solved.at(key))
             # Every variable of the chunk's factors is solved now: their error after the
             # step, while they are at hand (chunk 0's include the landmarks' own).
-            errors += _graph_error(nonlinear, values, delta, scales)
+            errors += self._error(c, nonlinear, values, delta, scales)
         return _Step(delta, *errors)
 
 
@@ -206,21 +235,22 @@ class _Step:
 
 def _graph_error(
     graph: gtsam.NonlinearFactorGraph,
-    values: gtsam.Values,
+    subset: gtsam.Values,
     delta: gtsam.VectorValues,
     scales: tuple[float, ...],
-) -> np.ndarray:
-    """The error of ``graph`` at ``values`` moved by ``delta`` times each of ``scales``."""
-    subset = _subset(values, graph)
-    errors = []
+) -> tuple[np.ndarray, list[gtsam.Values]]:
+    """The error of ``graph`` at ``subset`` (the values of its keys) moved by ``delta`` times
+    each of ``scales``, and the moved values."""
+    errors, moved = [], []
     for scale in scales:
-        moved = delta
+        step = delta
         if scale != 1.0:
-            moved = gtsam.VectorValues()
+            step = gtsam.VectorValues()
             for key in graph.keyVector():
-                moved.insert(key, scale * delta.at(key))
-        errors.append(graph.error(subset.retract(moved)))
-    return np.array(errors)
+                step.insert(key, scale * delta.at(key))
+        moved.append(subset.retract(step))
+        errors.append(graph.error(moved[-1]))
+    return np.array(errors), moved
 
 
 def _subset(values: gtsam.Values, graph: gtsam.NonlinearFactorGraph) -> gtsam.Values:
@@ -299,6 +329,7 @@ def chunked_levenberg_marquardt(
             previous = vector
         if taken != 1.0:
             scale = 1.0
+        chunks.accept(taken)
         current = current.retract(step.delta if taken == 1.0 else step.delta.scale(taken))
         largest = max(largest, taken * float(np.abs(vector).max()))
         decrease = error - candidate_error
@@ -314,8 +345,14 @@ def _extrapolation(previous: np.ndarray | None, vector: np.ndarray) -> float:
     by rho < 1 in about the same direction (1: no extrapolation)."""
     if previous is None:
         return 1.0
-    norms = float(np.linalg.norm(previous)) * float(np.linalg.norm(vector))
-    if norms == 0.0 or float(previous @ vector) < EXTRAPOLATE_COSINE * norms:
+    # einsum, not BLAS (np.linalg.norm, @): OpenBLAS splits a dot this long (12 numbers
+    # per frame) over threads, whose start-up took milliseconds per call on a loaded machine.
+    inner, before, after = (
+        float(np.einsum("i,i->", a, b))
+        for a, b in ((previous, vector), (previous, previous), (vector, vector))
+    )
+    norms = math.sqrt(before) * math.sqrt(after)
+    if norms == 0.0 or inner < EXTRAPOLATE_COSINE * norms:
         return 1.0
-    ratio = float(np.linalg.norm(vector) / np.linalg.norm(previous))
+    ratio = math.sqrt(after) / math.sqrt(before)
     return 1.0 / (1.0 - ratio) if ratio < MAX_RATIO else 1.0

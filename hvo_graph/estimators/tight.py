@@ -63,7 +63,7 @@ from hvo_graph.errors import InputError, as_integer, as_number
 from hvo_graph.estimators import plane_gauge
 from hvo_graph.estimators.base import Estimator
 from hvo_graph.estimators.choices import TIGHT_SOLVERS
-from hvo_graph.estimators.factors import motion_factor
+from hvo_graph.estimators.factors import _motion_factor
 from hvo_graph.estimators.landmarks import DEFAULT_MAX_LANDMARKS, back_project, farthest_points
 from hvo_graph.estimators.noise_estimation import ProcessNoiseSchedule
 from hvo_graph.estimators.plane_tracks import DEFAULT_TRACK_CHI2, off_plane_keys
@@ -204,11 +204,14 @@ class TightSmoother(Estimator):
                 compute_covariance=self.compute_covariance,
             )
         else:
+            # Rebuilt windows by Cholesky (half QR's time per update at 20 landmarks, the
+            # same estimates to rounding); the first one, with the world prior, by QR.
             self.backend = WindowIsam2Backend(
                 tight_isam2_params(threshold, skip),
                 max_iterations=max_iterations,
                 compute_covariance=self.compute_covariance,
                 pixel_noise=self._pixel_noise_model,
+                rebuilt=tight_isam2_params(threshold, skip, "CHOLESKY"),
             )
         self._world_noise = gtsam.noiseModel.Isotropic.Sigma(6, DEFAULT_WORLD_SIGMA)
         self._twist_prior = gtsam.noiseModel.Isotropic.Sigma(6, DEFAULT_INITIAL_TWIST_SIGMA)
@@ -282,7 +285,8 @@ class TightSmoother(Estimator):
         else:
             previous, dt = self._indices[-1], t - self._times[-1]
             motion_noise, walk_noise = self._motion_noise(dt)
-            graph.add(motion_factor(X(previous), X(k), V(previous), V(k), dt, motion_noise))
+            # dt > 0 (checked above) and a 6-D noise: built unchecked.
+            graph.add(_motion_factor((X(previous), X(k), V(previous), V(k)), dt, motion_noise))
             graph.add(gtsam.BetweenFactorVector(V(previous), V(k), _ZERO6, walk_noise))
             store.add_motion(dt, self.acceleration_sigma)  # both, as numbers
             if frame.pose is not None:
@@ -291,9 +295,10 @@ class TightSmoother(Estimator):
             else:
                 step = gtsam.Pose3.Expmap((0.5 * dt) * (self._twist + twist_guess))
                 pose_guess = self._pose.compose(step)
-        new = self._observe(graph, values, k, pose_guess, points) if points is not None else []
+        new = self._observe(graph, values, k, pose_guess, points) if points is not None else None
         if not self._indices:  # the first frame holds the map's similarity (plane_gauge)
-            self.gauge = plane_gauge.first_frame_gauge(k, new, points)
+            added = [] if new is None else list(zip(*new, strict=True))
+            self.gauge = plane_gauge.first_frame_gauge(k, added, points)
         values.insert(X(k), pose_guess)
         values.insert(V(k), twist_guess)
         self._indices.append(k)
@@ -303,16 +308,10 @@ class TightSmoother(Estimator):
         if len(self._indices) == plane_gauge.HOLD_AFTER:  # the scale is in: hold it
             self.gauge = plane_gauge.hold_scale(self.gauge, self.backend)
         self._pose, self._twist = pose, np.asarray(twist, dtype=float)
-        if new:
-            self._observations.append(
-                (
-                    k,
-                    np.array([key for _, key, _ in new], dtype=np.uint64),
-                    np.array([m for _, _, m in new]),
-                    float(points.sigma),  # type: ignore[union-attr]
-                )
-            )
-            self._gate(pose, new, points.sigma)  # type: ignore[union-attr]
+        if new is not None and len(new[1]):
+            sigma = float(points.sigma)  # type: ignore[union-attr]
+            self._observations.append((k, np.array(new[1], dtype=np.uint64), new[2], sigma))
+            self._gate(pose, new, sigma)
         return StateEstimate(
             index=k,
             t=t,
@@ -329,17 +328,18 @@ class TightSmoother(Estimator):
         k: int,
         pose_guess: gtsam.Pose3,
         points: PointObservations,
-    ) -> list[tuple[int, int, np.ndarray]]:
-        """Projection factors of the frame's points (new landmarks as needed); returns
-        (track id, landmark key, m) of each observation added."""
+    ) -> tuple[list[int], list[int], np.ndarray]:
+        """Projection factors of the frame's points (new landmarks as needed); returns the
+        track ids, landmark keys and m (N, 2) of the observations added."""
         anchor = not self._indices  # the first frame: Gaussian (module docstring)
         noise = self._pixel_noise_model(float(points.sigma), robust=not anchor)
         normal = np.asarray(points.normal, dtype=float)
         distance = float(points.distance)
         self._plane = (normal, distance)
-        added = []
         tracks, coordinates = self._admitted(np.asarray(points.ids), np.asarray(points.m, float))
-        for track, m in zip(tracks, coordinates, strict=True):
+        pose = X(k)
+        used, keys, rows = [], [], []
+        for i, (track, m) in enumerate(zip(tracks, coordinates, strict=True)):
             key = self._landmarks.get(track)
             if key is None or not self._live(key):
                 point = back_project(pose_guess, m, normal, distance)
@@ -354,14 +354,14 @@ class TightSmoother(Estimator):
                 stiff = plane_gauge.plane_noise(normal, self.plane_sigma, IN_PLANE_SIGMA)
                 graph.add(plane := gtsam.PriorFactorPoint3(key, point, stiff))
                 self.backend.store.add_landmark(key, plane)  # the final solve's copy
-            graph.add(gtsam.GenericProjectionFactorCal3_S2(m, noise, X(k), key, _UNIT_CALIBRATION))
-            self.counts["observations"] += 1
-            added.append((track, key, m))
-        m = np.array([m for _, _, m in added])  # the final solve's copy, as numbers:
-        self.backend.store.add_observations(
-            [key for _, key, _ in added], m, float(points.sigma), robust=not anchor
-        )
-        return added
+            graph.add(gtsam.GenericProjectionFactorCal3_S2(m, noise, pose, key, _UNIT_CALIBRATION))
+            used.append(track)
+            keys.append(key)
+            rows.append(i)
+        self.counts["observations"] += len(keys)
+        m = coordinates if len(rows) == len(tracks) else coordinates[rows]  # the final solve's:
+        self.backend.store.add_observations(keys, m, float(points.sigma), robust=not anchor)
+        return used, keys, m
 
     def _admitted(self, ids: np.ndarray, m: np.ndarray) -> tuple[list[int], np.ndarray]:
         """The frame's observations to use: not rejected, and at most ``max_landmarks``
@@ -398,28 +398,29 @@ class TightSmoother(Estimator):
         isam = getattr(self.backend, "isam", None)
         return True if isam is None else bool(isam.valueExists(key))
 
-    def _point(self, key: int) -> np.ndarray:
-        """The current estimate of landmark ``key``."""
-        isam = getattr(self.backend, "isam", None)
-        live = getattr(self.backend, "live", None)
-        if isam is not None and (live is None or key in live):
-            return np.asarray(isam.calculateEstimatePoint3(key), dtype=float)
-        return np.asarray(self.backend.initial.atPoint3(key), dtype=float)  # type: ignore[attr-defined]
+    def _points(self, keys: list[int]) -> np.ndarray:
+        """(N, 3) the current estimates of the landmarks ``keys``."""
+        isam, live = getattr(self.backend, "isam", None), getattr(self.backend, "live", None)
+        if isam is None:
+            return np.array([self.backend.initial.atPoint3(key) for key in keys])  # type: ignore[attr-defined]
+        if live is None or live.issuperset(keys):
+            return np.array([isam.calculateEstimatePoint3(key) for key in keys])
+        at = self.backend.initial.atPoint3  # type: ignore[attr-defined]  # left the window
+        return np.array([isam.calculateEstimatePoint3(k) if k in live else at(k) for k in keys])
 
-    def _gate(
-        self, pose: gtsam.Pose3, added: list[tuple[int, int, np.ndarray]], sigma: float
-    ) -> None:
-        """Count the observations whose whitened residual fails the chi^2 gate."""
+    def _gate(self, pose: gtsam.Pose3, added: tuple[list, list, np.ndarray], sigma: float) -> None:
+        """Count the observations (track ids, landmark keys, m (N, 2)) whose whitened
+        residual fails the chi^2 gate."""
+        tracks, keys, m = added
         R = pose.rotation().matrix()
         p = np.asarray(pose.translation(), dtype=float)
         # all observations at once: c = R^T (L - p) per row, in the camera frame
-        c = (np.array([self._point(key) for _, key, _ in added]) - p) @ R
-        m = np.array([m for _, _, m in added])
+        c = (self._points(keys) - p) @ R
         ahead = c[:, 2] > 1e-9
         with np.errstate(divide="ignore", invalid="ignore"):  # behind the camera: inf
             r = (m - c[:, :2] / c[:, 2:]) / sigma
         chi2s = np.where(ahead, np.einsum("ij,ij->i", r, r), math.inf).tolist()
-        for (track, key, _), chi2 in zip(added, chi2s, strict=True):
+        for track, key, chi2 in zip(tracks, keys, chi2s, strict=True):
             if chi2 <= self.reject_chi2:
                 self._strikes.pop(track, None)
                 continue
