@@ -298,3 +298,24 @@ def test_a_plane_track_survives_the_pull_of_off_plane_ones(monkeypatch):
     fixed = TightSmoother()
     fixed.run(frames)
     assert fixed.rejected_tracks == outliers | {1}
+
+
+def test_a_window_gtsam_cannot_solve_keeps_the_fixed_pose_verdict(monkeypatch):
+    """An indeterminate window (GTSAM raises, e.g. a landmark seen only from held frames)
+    must not stop the run: the candidate keeps the fixed-pose verdict and is rejected."""
+    import hvo_graph.estimators.tight_solvers as solvers
+
+    drawn = draw("outliers-dropouts", 1, duration=4.0)
+    frames = measure(drawn.scenario.observations, drawn.scenario, method="tight")
+
+    def indeterminate(*args, **kwargs):
+        raise RuntimeError("Indeterminate linear system detected while working near variable")
+
+    monkeypatch.setattr(solvers, "graph_statistic", indeterminate)
+    tight = TightSmoother()
+    tight.run(frames)
+    monkeypatch.setattr(tight_module, "confirm_off_plane", lambda b, candidates, *a: candidates)
+    fixed = TightSmoother()
+    fixed.run(frames)
+    assert tight.rejected_tracks == fixed.rejected_tracks
+    assert any(i >= OUTLIER_ID_START for i in tight.rejected_tracks)

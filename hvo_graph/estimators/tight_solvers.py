@@ -382,8 +382,8 @@ def confirm_off_plane(
     frames either side at the final optimum. One at a time, the largest statistic first:
     a track found off the plane leaves the graph (re-solved) before the tracks whose
     graph it was in are tested again, so its pull on the poses does not count against
-    them. A track spanning more frames than a chunk of the final solve keeps the
-    fixed-pose verdict.
+    them. A track spanning more frames than a chunk of the final solve, or whose window's
+    system GTSAM finds indeterminate, keeps the fixed-pose verdict.
 
     Args:
         backend: the batch or "isam2" back end, its graph complete.
@@ -405,13 +405,17 @@ def confirm_off_plane(
         for key in remaining:
             if key in statistics:
                 continue
-            graph, values, held = _track_graph(backend, windows[key], set(failed))  # type: ignore[arg-type]
-            seen[key] = set(graph.keyVector())
-            start = np.asarray(values.atPoint3(key), dtype=float)
-            r = rows[key]
-            statistics[key] = graph_statistic(
-                graph, values, frames[r], m[r], sigma[r], plane_noise, start, held=held
-            )
+            try:
+                graph, values, held = _track_graph(backend, windows[key], set(failed))  # type: ignore[arg-type]
+                seen[key] = set(graph.keyVector())
+                start = np.asarray(values.atPoint3(key), dtype=float)
+                r = rows[key]
+                statistics[key] = graph_statistic(
+                    graph, values, frames[r], m[r], sigma[r], plane_noise, start, held=held
+                )
+            except RuntimeError:  # GTSAM: the window's system is indeterminate (a landmark
+                seen[key] = set()  # seen only from held frames): the fixed-pose verdict
+                statistics[key] = np.inf
         worst = max(remaining, key=statistics.__getitem__)
         if statistics[worst] <= threshold:
             break
