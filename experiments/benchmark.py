@@ -1049,7 +1049,10 @@ def reference_sections(args: argparse.Namespace) -> list[tuple[str, str]]:
                 "(written as `hvo-graph simulate` writes it), one fresh process per method, as "
                 "a user runs it: reading the CSV, the front end, the estimator and every "
                 f"output file; the smoother and the fixed-lag smoother also on {long:,} frames "
-                "(their peak memory over a long sequence).",
+                "(their peak memory over a long sequence). Without `--online` the default "
+                "smoother runs no online window: its final solve starts from the measurements "
+                "(`FactorGraphSmoother.run(frames, online=False)`, the same optimum); the "
+                "per-update rows above time it with the window, as a streaming user runs it.",
                 refs.cli_section(runs),
             ]
         )

@@ -173,7 +173,7 @@ def run_methods(
     frames: Sequence[FrameMeasurement], methods: Sequence[str], seed: int
 ) -> dict[str, Trajectory]:
     """Every method on the same measurements (one ISAM2 run for both smoother rows)."""
-    runs = MethodRuns(lambda _solver: frames, seed)
+    runs = MethodRuns(lambda _solver: frames, seed, methods=methods)
     out: dict[str, Trajectory] = {}
     for label in methods:
         try:

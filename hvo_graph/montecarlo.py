@@ -72,6 +72,8 @@ class MethodRuns:
         measure: the measurements for a pose solver ("homography" or "ippe").
         seed: seed of the Kalman filters' random initial state.
         covariance: the smoothers also return their marginal covariances.
+        methods: every label that will be asked for (None: not known); a run not read
+            for online estimates skips what serves them alone (``Estimator.run``).
     """
 
     def __init__(
@@ -80,8 +82,12 @@ class MethodRuns:
         seed: int,
         *,
         covariance: bool = False,
+        methods: Sequence[str] | None = None,
     ) -> None:
         self._measure = measure
+        self._read_online = (
+            None if methods is None else {method(m).online_of for m in methods} - {None}
+        )
         self.seed = seed
         self.covariance = covariance
         self._frames: dict[str, Sequence[FrameMeasurement]] = {}
@@ -100,7 +106,8 @@ class MethodRuns:
         if source.name not in self._runs:
             frames = self.frames(source.pose_solver)
             estimator = make_method(source.name, self.seed, covariance=self.covariance)
-            self._runs[source.name] = (estimator, estimator.run(frames))
+            online = self._read_online is None or source.name in self._read_online
+            self._runs[source.name] = (estimator, estimator.run(frames, online=online))
         estimator, final = self._runs[source.name]
         return estimator.online_trajectory() if record.online_of else final
 
@@ -226,6 +233,7 @@ def _evaluate(
         ),
         result.seed,
         covariance=covariance,
+        methods=methods,
     )
     where = f"{result.family} " if result.family else ""
     for label in methods:

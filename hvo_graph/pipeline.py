@@ -228,7 +228,7 @@ def run_estimate(
     front_end = MeasurementFrontEnd(scene.camera, scene.plane, config)
     frames = front_end.process_table(observations)
     _check_measured(frames, front_end, method)
-    smoothed = estimator.run(frames)
+    smoothed = estimator.run(frames, online=online)
     trajectory = estimator.online_trajectory() if online else smoothed
     if not options.get("covariance") and trajectory.covariances is not None:
         trajectory = dataclasses.replace(trajectory, covariances=None)

@@ -26,6 +26,7 @@ import numpy as np
 import pytest
 from gtsam.symbol_shorthand import V, X
 
+from hvo_graph.errors import InputError
 from hvo_graph.estimators import factor_store
 from hvo_graph.estimators.smoother import BatchSmoother, FactorGraphSmoother, FixedLagSmoother
 from hvo_graph.estimators.solvers import MARGINALIZATION_BLOCKS, ONLINE_WINDOW
@@ -208,3 +209,42 @@ def test_the_tight_graph_holds_a_bounded_window_online():
     estimate = tight.trajectory()
     error = np.linalg.norm(estimate.positions - scenario.groundtruth.positions, axis=1)
     assert np.sqrt(np.mean(error[30:] ** 2)) < 0.02
+
+
+@pytest.mark.parametrize("case", ["chain", "keyframe"])
+def test_a_run_without_online_estimates_reaches_the_same_optimum(case, long_frames):
+    """``run(frames, online=False)`` skips the online window: the final solve starts from
+    the measurements instead of the window's estimates. Two chunks and their seam
+    ("chain"), or every frame from 100 on measured against frame 20 ("keyframe": the
+    initial values compose each measurement with frame 20's)."""
+    frames = long_frames[0][:2600]
+    if case == "keyframe":
+        frames = against_keyframe(frames, 20, 100)
+    windowed = FactorGraphSmoother(acceleration_sigma=SIGMA, compute_covariance=True)
+    expected = windowed.run(frames)
+    smoother = FactorGraphSmoother(acceleration_sigma=SIGMA, compute_covariance=True)
+    final = smoother.run(frames, online=False)
+    assert smoother.backend.isam.getLinearizationPoint().size() == 0  # no window ran
+    assert smoother.backend.moves[0] > 10 * max(windowed.backend.moves[0], 1e-6)
+    assert np.abs(final.positions - expected.positions).max() < 1e-8
+    turn = np.einsum("kji,kjl->kil", expected.rotations, final.rotations)
+    angles = [np.linalg.norm(gtsam.Rot3.Logmap(gtsam.Rot3(R))) for R in turn]
+    assert max(angles) < 1e-8
+    assert np.abs(final.twists - expected.twists).max() < 1e-8
+    scale = np.abs(expected.covariances).max()
+    assert np.abs(final.covariances - expected.covariances).max() < 1e-6 * scale
+    with pytest.raises(
+        InputError,
+        match=r"^online_trajectory: the run kept no online estimates \(online=False\)$",
+    ):
+        smoother.online_trajectory()
+
+
+def test_a_robust_run_keeps_its_window_without_online_estimates(long_frames):
+    # A robust loss needs the window's predictions as initial values (an outlier started
+    # at its own value would be fitted first): online=False does not skip the window.
+    frames = long_frames[0][:200]
+    smoother = FactorGraphSmoother(acceleration_sigma=SIGMA, robust="huber")
+    smoother.run(frames, online=False)
+    assert smoother.backend.isam.getLinearizationPoint().size() > 0  # the window ran
+    assert len(smoother.online_trajectory().t) == 200

@@ -90,8 +90,12 @@ class Estimator(ABC):
         """The final estimate of every frame so far (smoothed, for smoothers)."""
         return self.online_trajectory()
 
-    def run(self, frames: Iterable[FrameMeasurement]) -> Trajectory:
-        """Update with every frame and return :meth:`trajectory`."""
+    def run(self, frames: Iterable[FrameMeasurement], *, online: bool = True) -> Trajectory:
+        """Update with every frame and return :meth:`trajectory`.
+
+        ``online`` False: the caller wants the final estimates only, and a smoother may
+        skip work that serves :meth:`online_trajectory` alone (the default smoother does).
+        """
         for frame in frames:
             self.update(frame)
         return self.trajectory()

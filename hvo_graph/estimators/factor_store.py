@@ -319,9 +319,10 @@ def solve_in_chunks(
     frames is one plain batch solve. Longer ones: a sweep over chunks of ``chunk``
     frames, consecutive ones sharing ``overlap``; then, when every factor is local
     (its frames at most ``overlap`` / 2 apart: a chain), the seams between chunks
-    (``overlap`` frames either side of each chunk's start: only there did a frame's
-    neighbours move after it was solved) are solved again until none moves by more
-    than ``tolerance``, with a full sweep between two seam sweeps that do move;
+    (``overlap`` / 4 frames, and at least the longest factor's span, either side of
+    each chunk's start: only there did a frame's neighbours move after it was
+    solved) are solved again until none moves by more than ``tolerance``, with a
+    full sweep between two seam sweeps that do move;
     otherwise (a keyframe factor reaching far back: its frames moved anywhere) full
     sweeps until one moves nothing by more than ``tolerance``. Should
     :data:`MAX_SWEEPS` sweeps not settle, or full sweeps shrink their move by less
@@ -348,8 +349,10 @@ def solve_in_chunks(
     while starts[-1] + chunk < total:
         starts.append(starts[-1] + max(1, chunk - overlap))
     chunks = [(first, min(first + chunk, total)) for first in starts]
-    seams = [(first - overlap, min(first + overlap, total)) for first in starts[1:]]
-    if store.longest_span() > overlap // 2:
+    span = store.longest_span()
+    half = max(overlap // 4, span)
+    seams = [(first - half, min(first + half, total)) for first in starts[1:]]
+    if span > overlap // 2:
         seams = chunks
     moves: list[float] = []
     if _sweeps(store, values, indices, chunks, seams, tolerance, max_iterations, moves):
@@ -415,21 +418,12 @@ def _solve_range(
     if not landmarks:
         held.extend(observed.tolist())
     solved, _ = levenberg_marquardt(graph, chunk_values, max_iterations=max_iterations, fixed=held)
-    moved = chunk_values.localCoordinates(solved)
-    largest = 0.0
-    for k in indices[first:stop].tolist():
-        for symbol in symbols:
-            key = symbol(k)
-            largest = max(largest, float(np.abs(moved.at(key)).max()))
-            if symbol is X:
-                values.update(key, solved.atPose3(key))
-            else:
-                values.update(key, solved.atVector(key))
+    own = [symbol(k) for k in indices[first:stop].tolist() for symbol in symbols]
     if landmarks:
-        for key in observed.tolist():
-            largest = max(largest, float(np.abs(moved.at(key)).max()))
-            values.update(key, solved.atPoint3(key))
-    return largest
+        own.extend(observed.tolist())
+    # Whole Values at once: one call each, not three per variable.
+    values.update(solved.extract(own))
+    return float(np.abs(chunk_values.localCoordinates(solved).vector(own)).max())
 
 
 def stored_optimum(

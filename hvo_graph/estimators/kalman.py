@@ -303,8 +303,9 @@ class KalmanBaseline(Estimator):
         _check_pitch(float(self.x[3]), f"frame {frame.index}: estimated state")
         return self.state_estimate(frame.index, t)
 
-    def run(self, frames: Iterable[FrameMeasurement]) -> Trajectory:
-        """Filter a whole sequence; "auto" process noise is fitted on it first."""
+    def run(self, frames: Iterable[FrameMeasurement], *, online: bool = True) -> Trajectory:
+        """Filter a whole sequence; "auto" process noise is fitted on it first (a filter's
+        final estimates are its online ones: ``online`` changes nothing)."""
         frames = list(frames)
         if self.auto_process_noise and not self._online:
             fit = estimate_process_noise(frames, default=DEFAULT_ACCELERATION_SIGMA)

@@ -28,7 +28,9 @@ def levenberg_marquardt(
     (GTSAM's default, non-diagonal damping), solves with GTSAM's multifrontal
     elimination, and retracts; a step that does not lower the error is retried
     with lambda x 10, an accepted one divides lambda by 10. Stops when the
-    error decrease is below ``relative_tolerance * error + absolute_tolerance``.
+    error decrease is below ``relative_tolerance * error + absolute_tolerance``,
+    or a step raises the error by less than that (rounding at the optimum: raising
+    lambda up to 1e10 would only repeat the solve).
 
     Why not ``gtsam.LevenbergMarquardtOptimizer``: its iterates are C++
     ``Values``, which pybind11 copies in full for every Python ``CustomFactor``
@@ -74,6 +76,8 @@ def levenberg_marquardt(
             if candidate_error <= error:
                 lam = max(lam / 10.0, 1e-15)
                 break
+            if candidate_error - error <= relative_tolerance * error + absolute_tolerance:
+                return values, iteration  # worse by rounding alone: already at the optimum
             lam *= 10.0
             if lam > 1e10:  # no descent direction left: converged as far as it goes
                 return values, iteration

@@ -334,7 +334,7 @@ def estimate_process_noise(
         The estimate; ``poses`` = 0 and the default when there was too little data
         (``model`` then "wnj" for "auto").
     """
-    t, s, C = unrolled_poses(frames)
+    t, s, C = unrolled_poses(_latest_poses(frames, MAX_POSES))
     if len(t) < MIN_POSES:
         return ProcessNoiseEstimate(default, float("nan"), 0, "wnj" if model == "auto" else model)
     t, s, C = t[-MAX_POSES:], s[-MAX_POSES:], C[-MAX_POSES:]
@@ -346,6 +346,18 @@ def estimate_process_noise(
 
 
 _LIKELIHOODS = {"wna": "log_likelihood", "wnj": "jerk_log_likelihood"}
+
+
+def _latest_poses(frames: Sequence[FrameMeasurement], count: int) -> Sequence[FrameMeasurement]:
+    """The tail of ``frames`` holding the latest ``count`` poses and the pose before them
+    (the likelihood reads only those; unrolling the whole sequence grows with it)."""
+    seen = 0
+    for start in range(len(frames) - 1, -1, -1):
+        if frames[start].pose is not None:
+            seen += 1
+            if seen > count:
+                return frames[start:]
+    return frames
 
 
 def _fit(

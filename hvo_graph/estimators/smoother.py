@@ -254,13 +254,16 @@ class FactorGraphSmoother(Estimator):
         """The motion model in force, "wna" or "wnj" (fixed once a frame is in)."""
         return self.process_noise.model
 
-    def run(self, frames: Iterable[FrameMeasurement]) -> Trajectory:
+    def run(self, frames: Iterable[FrameMeasurement], *, online: bool = True) -> Trajectory:
         """Fuse a whole sequence; "auto" process noise is fitted on all of it first. The
-        frames' numbers are checked a block at a time (:func:`.screen_frames`)."""
+        frames' numbers are checked a block at a time (:func:`.screen_frames`). ``online``
+        False (ISAM2, no robust loss: it needs the window's predictions): no window, the
+        final solve starts from the measurements (same optimum, a third sooner)."""
         frames = frames if isinstance(frames, Sequence) else list(frames)  # a table: as is
         if not self._indices:
             self.process_noise.fit_all(frames)
             self.acceleration_sigma = self.process_noise.sigma
+            self.backend.windowed = online or self.robust is not None
         for screened in measurement_checks.screened(frames, self.shared_reference_noise):
             self._screened = screened
             self.update(screened[0])
@@ -339,18 +342,7 @@ class FactorGraphSmoother(Estimator):
         graph = gtsam.NonlinearFactorGraph()
         first = not self._indices
         dt = 0.0 if first else t - self._times[-1]
-        self.backend.store.add_frame(k)
-        if first:
-            world = self._anchor_start if self.shared_reference_noise else self._world_noise
-            self._add(graph, gtsam.PriorFactorPose3(X(k), gtsam.Pose3(), world), "fixed")
-            for key in twist_keys(self.motion_model, k):  # V(k) (and A(k))
-                prior = gtsam.PriorFactorVector(key, _ZERO6, self._twist_prior_noise)
-                self._add(graph, prior, "fixed")
-        else:
-            previous, sigma = self._indices[-1], self.acceleration_sigma
-            for factor in self._motion(self.motion_model, previous, k, dt, sigma):
-                self._add(graph, factor, "motion", stored=True)
-            self.backend.store.add_motion(dt, sigma, self.motion_model)  # as numbers
+        self._add_start_or_motion(graph, k, dt)
         self._indices.append(k)
         self._times.append(t)
         self._last_reference = pose_meas[2] if pose_meas is not None else None
@@ -406,15 +398,30 @@ class FactorGraphSmoother(Estimator):
             covariance=covariance,
         )
 
+    def _add_start_or_motion(self, graph: gtsam.NonlinearFactorGraph, k: int, dt: float) -> None:
+        """The first frame's priors, or the motion factors from the previous frame (as
+        numbers in the store; as factors only for the window and the record)."""
+        self.backend.store.add_frame(k)
+        if not self._indices:
+            world = self._anchor_start if self.shared_reference_noise else self._world_noise
+            self._add(graph, gtsam.PriorFactorPose3(X(k), gtsam.Pose3(), world), "fixed")
+            for key in twist_keys(self.motion_model, k):  # V(k) (and A(k))
+                prior = gtsam.PriorFactorVector(key, _ZERO6, self._twist_prior_noise)
+                self._add(graph, prior, "fixed")
+            return
+        previous, sigma = self._indices[-1], self.acceleration_sigma
+        if self.backend.windowed or self.record is not None:
+            for factor in self._motion(self.motion_model, previous, k, dt, sigma):
+                self._add(graph, factor, "motion", stored=True)
+        self.backend.store.add_motion(dt, sigma, self.motion_model)
+
     def _poses_span(self, k: int, pose_meas: tuple | None, nodes: list[int]) -> bool:
         """Whether H_d poses of the previous frame and of frame k already measure the H_c
         interval (against one reference, or frame k's against the previous frame)."""
         if self.velocity_factors == "all" or pose_meas is None or len(self._indices) == 0:
             return False
         previous = self._indices[-1]
-        if nodes != [previous, k]:
-            return False
-        return poses_span(previous, self._last_reference, pose_meas[2])
+        return nodes == [previous, k] and poses_span(previous, self._last_reference, pose_meas[2])
 
     def _with_anchor_noise(
         self, covariance: np.ndarray, pose: gtsam.Pose3, anchor: gtsam.Pose3
@@ -435,13 +442,15 @@ class FactorGraphSmoother(Estimator):
 
     def _with_reference_noise(self, position: int, covariance: np.ndarray) -> np.ndarray:
         """The 12x12 marginal plus the shared reference noise the factors left out."""
-        if not self.shared_reference_noise:
-            return covariance
-        covariance = covariance.copy()
-        covariance[:6, :6] += self._reference_cov[position]
-        return covariance
+        shared = self._reference_cov[position] if self.shared_reference_noise else _ZERO66
+        return covariance + np.pad(shared, (0, 6))
 
     # -- results ----------------------------------------------------------------------------
+
+    def online_trajectory(self) -> Trajectory:
+        if not self.backend.windowed:
+            raise InputError("online_trajectory: the run kept no online estimates (online=False)")
+        return super().online_trajectory()
 
     def trajectory(self) -> Trajectory:
         """The smoothed estimate of every frame so far (see the class docstring per solver)."""
@@ -469,13 +478,7 @@ class FactorGraphSmoother(Estimator):
             )
             smoothed[:, :6, :6] += self._world_sigma**2 * np.eye(6)
             covariances[:] = [self._with_reference_noise(i, c) for i, c in enumerate(smoothed)]
-        return Trajectory(
-            t=np.array(self._times),
-            rotations=rotations,
-            positions=positions,
-            twists=twists,
-            covariances=covariances,
-        )
+        return Trajectory(np.array(self._times), rotations, positions, twists, covariances)
 
 
 class BatchSmoother(FactorGraphSmoother):

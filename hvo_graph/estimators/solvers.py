@@ -93,6 +93,8 @@ class Backend(ABC):
     solver: str = ""
     #: Where the smoother also keeps every factor, compactly (by default: nowhere).
     store: FactorStore = FactorStore(None)
+    #: ISAM2: whether frames go through the online window (else they are only stored).
+    windowed: bool = True
 
     def __init__(self, *, compute_covariance: bool) -> None:
         self.compute_covariance = compute_covariance
@@ -378,6 +380,8 @@ class Isam2Backend(Backend):
     ) -> FrameValues:
         self.initial.insert(values)
         self._result = None
+        if not self.windowed:  # the initial values are the measurements (as batch's)
+            return values.atPose3(X(index)), np.asarray(values.atVector(V(index))), None
         stamp = float(self._count // self.block * self.block)
         self._count += 1
         stamps = dict.fromkeys(values.keys(), stamp)  # the frame's X, V (and A)

@@ -244,8 +244,9 @@ class TightSmoother(Estimator):
         self.acceleration_sigma = check_acceleration_sigma(value)
         self._motion_noise = MotionNoise(self.acceleration_sigma)
 
-    def run(self, frames: Iterable[FrameMeasurement]) -> Trajectory:
-        """Fuse a whole sequence; "auto" process noise is fitted on all of it first."""
+    def run(self, frames: Iterable[FrameMeasurement], *, online: bool = True) -> Trajectory:
+        """Fuse a whole sequence; "auto" process noise is fitted on all of it first (the
+        window also places new landmarks and gates pixels: it runs whatever ``online``)."""
         frames = list(frames)
         if not self._indices:
             self.process_noise.fit_all(frames)
