@@ -307,6 +307,19 @@ def run(args: argparse.Namespace) -> int:
             f"frames, standard deviation {fit.sigma_deg:.2f} deg",
             file=sys.stderr,
         )
+    if run.pixel_noise is not None:
+        sigma = f"{run.pixel_noise.sigma:.3g} px"
+        print(
+            f"{PROG} estimate: pixel noise sigma = {sigma}, read from the tracks "
+            f"({run.pixel_noise.differences} differences; the camera file's "
+            "noise.pixel_sigma or --pixel-sigma sets it)"
+            if run.pixel_noise_used
+            else f"{PROG} estimate: the tracks' frame-to-frame noise is {sigma}; the "
+            f"pixel sigma stays {run.front_end.pixel_sigma:.4g} px, since errors that "
+            "neighbouring tracks share do not show in it (the camera file's "
+            "noise.pixel_sigma or --pixel-sigma sets it)",
+            file=sys.stderr,
+        )
     counts = run.summary()["counts"]
     rejected = counts["rejected_points"]  # type: ignore[index]
     note = f"; {rejected} track points rejected as outliers" if rejected else ""

@@ -482,6 +482,11 @@ class TightSmoother(Estimator):
         covariances = np.empty((n, 12, 12)) if self.compute_covariance else None
         if n:
             self._check_tracks()
+            if self._key_track and self._rejected_keys >= self._key_track.keys():
+                raise InputError(
+                    f"tracks: the tight graph found every track ({len(self.rejected_tracks)}) off "
+                    "the plane: are the pixels noisier than noise.pixel_sigma says?"
+                )
             self._prune()
             finals = self.backend.final(self._indices, marginals=self.compute_covariance)
             for i, (pose, twist, cov) in enumerate(finals):
@@ -491,10 +496,4 @@ class TightSmoother(Estimator):
                 if covariances is not None:
                     covariances[i] = cov
             plane_gauge.add_scale_share(self.gauge, self.backend, self._indices, covariances)
-        return Trajectory(
-            t=np.array(self._times, dtype=float),
-            rotations=rotations,
-            positions=positions,
-            twists=twists,
-            covariances=covariances,
-        )
+        return Trajectory(np.asarray(self._times, float), rotations, positions, twists, covariances)

@@ -75,6 +75,11 @@ class TrackTable(Sequence[FrameObservations]):
     def __len__(self) -> int:
         return len(self._index)
 
+    def rows(self) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+        """Every observation as columns: (R,) frame number, (R,) time, (R,) id, (R, 2) uv."""
+        counts = np.diff(self._starts)
+        return np.repeat(self._index, counts), np.repeat(self._t, counts), self._ids, self._uv
+
     @overload
     def __getitem__(self, k: int) -> FrameObservations: ...
 
