@@ -157,10 +157,17 @@ def test_the_covariance_includes_the_held_scale(monkeypatch):
     free = TightSmoother(acceleration_sigma=(0.05, 0.1), compute_covariance=True).run(frames)
     last = len(frames) - 1
     for k in (0, 1, 10, last // 2, last):
-        for block in (slice(0, 3), slice(3, 6), slice(6, 9), slice(9, 12)):
+        # the twist blocks are error covariances (tight_covariance): the free graph carries
+        # the scale there through its landmarks' marginals, the held one through the share
+        for block, tolerance in zip(
+            (slice(0, 3), slice(3, 6), slice(6, 9), slice(9, 12)),
+            (0.02, 0.02, 0.06, 0.06),
+            strict=True,
+        ):
             reference = free.covariances[k][block, block]
             total = with_scale.covariances[k][block, block]
-            np.testing.assert_allclose(total, reference, rtol=0, atol=0.02 * np.trace(reference))
+            atol = tolerance * np.trace(reference)
+            np.testing.assert_allclose(total, reference, rtol=0, atol=atol)
     graph = held.backend.store.whole_graph()
     j = gauge.sensitivities(graph, held.backend.values(), [last])[0]
     share = gauge.variance * np.outer(j, j)

@@ -315,6 +315,17 @@ def error_covariances(
     return _symmetric(covariance)
 
 
+def marginal_covariances(system: ChainSystem) -> np.ndarray:
+    """(K, n, n) Bayesian marginal of each frame's state: P + (P Y)(P Y)^T, the chain's
+    inverse information and the spread its shared noise sources add (the law of total
+    covariance: exact when the sources are variables the chain was conditioned on, with
+    their marginal covariance, as the tight graph's landmarks)."""
+    diagonal, upper = system.information()
+    chain = _chain(diagonal, upper)
+    shared = _solve(chain, upper, system.shared)
+    return _symmetric(chain.P + shared @ np.swapaxes(shared, 1, 2))
+
+
 def dense_error_covariances(
     system: ChainSystem, *, anchor_adjoint: np.ndarray | None = None
 ) -> np.ndarray:

@@ -70,6 +70,7 @@ from hvo_graph.estimators.plane_tracks import DEFAULT_TRACK_CHI2, off_plane_keys
 from hvo_graph.estimators.process_noise import DEFAULT_ACCELERATION_SIGMA, MotionNoise
 from hvo_graph.estimators.process_noise import acceleration_sigma as check_acceleration_sigma
 from hvo_graph.estimators.solvers import Backend, BatchBackend
+from hvo_graph.estimators.tight_covariance import backend_error_covariances
 from hvo_graph.estimators.tight_solvers import (
     LandmarkFixedLagBackend,
     WindowIsam2Backend,
@@ -131,8 +132,8 @@ class TightSmoother(Estimator):
         robust_threshold: Huber threshold on the whitened pixel residual norm
             (default :data:`DEFAULT_PIXEL_THRESHOLD`).
         compute_covariance: also return the 12x12 covariance of [pose tangent; twist]
-            per frame: online, the ISAM2 marginal after the frame's update; smoothed,
-            the marginal of the whole graph at its optimum.
+            per frame: online, the ISAM2 marginal after the frame's update; smoothed, the
+            pose's marginal, the twist's error covariance (``tight_covariance``).
         plane_sigma: standard deviation (m) of the plane constraint n*^T L = d*.
         reject_chi2, reject_after: the off-plane track gate (module docstring).
         track_chi2: threshold of the whole-track off-plane test at the end (module
@@ -476,9 +477,7 @@ class TightSmoother(Estimator):
     def trajectory(self) -> Trajectory:
         """The smoothed estimate of every frame so far (the class docstring per solver)."""
         n = len(self._indices)
-        rotations = np.empty((n, 3, 3))
-        positions = np.empty((n, 3))
-        twists = np.empty((n, 6))
+        rotations, positions, twists = np.empty((n, 3, 3)), np.empty((n, 3)), np.empty((n, 6))
         covariances = np.empty((n, 12, 12)) if self.compute_covariance else None
         if n:
             self._check_tracks()
@@ -488,12 +487,14 @@ class TightSmoother(Estimator):
                     "the plane: are the pixels noisier than noise.pixel_sigma says?"
                 )
             self._prune()
-            finals = self.backend.final(self._indices, marginals=self.compute_covariance)
+            marginal = self.backend.solver == "fixed-lag"  # else marginal pose, error twist
+            finals = self.backend.final(self._indices, marginals=marginal)
             for i, (pose, twist, cov) in enumerate(finals):
-                rotations[i] = pose.rotation().matrix()
-                positions[i] = pose.translation()
+                rotations[i], positions[i] = pose.rotation().matrix(), pose.translation()
                 twists[i] = twist
-                if covariances is not None:
+                if covariances is not None and marginal:
                     covariances[i] = cov
+            if covariances is not None and not marginal:
+                covariances[:] = backend_error_covariances(self.backend, self._indices, self._times)
             plane_gauge.add_scale_share(self.gauge, self.backend, self._indices, covariances)
         return Trajectory(np.asarray(self._times, float), rotations, positions, twists, covariances)
