@@ -54,31 +54,37 @@ def dense_sandwich(graph, values, indices):
     return np.array(out)
 
 
+def batch_optimum(scenario):
+    """``tight-batch`` on a scenario: (graph, optimum, frame indices, (K,) times, an ISAM2
+    of the graph at the optimum)."""
+    import gtsam
+
+    run = run_estimate(scenario.observations, scenario, "tight-batch")
+    backend = run.estimator.backend
+    graph, values = backend.graph, backend.values()
+    isam = gtsam.ISAM2()
+    isam.update(graph, values)
+    return graph, values, run.estimator._indices, run.trajectory.t, isam
+
+
 def test_the_chain_matches_the_whole_graphs_error_covariance():
     """The chain leaves out that the landmarks' errors come from the frames' own pixels:
     past the first second the twist variance is within a few percent of the whole graph's
     P M P, and on the first frames (whose pixels place the map) 0.85-1.6x."""
-    import gtsam
-
-    scenario = simulate(paper_scenario(seed=3, duration=6.0))
-    run = run_estimate(scenario.observations, scenario, "tight-batch")
-    backend, indices = run.estimator.backend, run.estimator._indices
-    graph, values = backend.graph, backend.values()
-    isam = gtsam.ISAM2()
-    isam.update(graph, values)
-    chain = tight_chain(graph, values, indices, run.trajectory.t, landmark_roots(isam, values))
+    graph, values, indices, times, isam = batch_optimum(
+        simulate(paper_scenario(seed=3, duration=6.0))
+    )
+    chain = tight_chain(graph, values, indices, times, landmark_roots(isam, values))
     ours = error_covariances(chain, bias_scale=None)
     dense = dense_sandwich(graph, values, indices)
     ratio = np.trace(ours[:, 6:, 6:], axis1=1, axis2=2) / np.trace(
         dense[:, 6:, 6:], axis1=1, axis2=2
     )
-    later = run.trajectory.t >= 1.0
+    later = times >= 1.0
     assert 0.95 < ratio[later].min() and ratio[later].max() < 1.1
     assert 0.85 < ratio.min() and ratio.max() < 1.6
     # landmarks taken apart (groups of one): their shared errors are double counted
-    apart = tight_chain(
-        graph, values, indices, run.trajectory.t, landmark_roots(isam, values, group=1)
-    )
+    apart = tight_chain(graph, values, indices, times, landmark_roots(isam, values, group=1))
     first = np.trace(error_covariances(apart, bias_scale=None)[0, 6:, 6:])
     assert first > 2.5 * np.trace(dense[0, 6:, 6:])
 
@@ -86,16 +92,10 @@ def test_the_chain_matches_the_whole_graphs_error_covariance():
 def test_the_chains_marginal_is_gtsams():
     """Frames given the landmarks, plus the landmarks' joint marginal through the frames'
     sensitivity to them (the law of total covariance), is the whole graph's marginal."""
-    import gtsam
     from gtsam.symbol_shorthand import V, X
 
-    scenario = draw("many-points", 1).scenario  # 30-50 landmarks
-    run = run_estimate(scenario.observations, scenario, "tight-batch")
-    backend, indices = run.estimator.backend, run.estimator._indices
-    graph, values = backend.graph, backend.values()
-    isam = gtsam.ISAM2()
-    isam.update(graph, values)
-    chain = tight_chain(graph, values, indices, run.trajectory.t, landmark_roots(isam, values))
+    graph, values, indices, times, isam = batch_optimum(draw("many-points", 1).scenario)
+    chain = tight_chain(graph, values, indices, times, landmark_roots(isam, values))
     ours = marginal_covariances(chain)
     for n in (0, 1, len(indices) // 2, len(indices) - 1):
         k = indices[n]
