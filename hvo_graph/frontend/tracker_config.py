@@ -47,6 +47,9 @@ class TrackerConfig:
             least 8), look for them again in each of this many later frames and
             resume the ones found under their old ids
             (:mod:`hvo_graph.frontend.reidentify`); 0: never.
+        compensate_exposure: map every image's gain and offset onto the first
+            image's before tracking (:class:`~hvo_graph.frontend.exposure.ExposureCompensation`):
+            KLT assumes constant brightness, which a camera's auto exposure breaks.
     """
 
     max_features: int = 200
@@ -64,6 +67,7 @@ class TrackerConfig:
     refine_max_px: float | None = 1.0
     wide_baseline: bool = True
     reidentify_frames: int = 60
+    compensate_exposure: bool = True
 
     def __post_init__(self) -> None:
         for name, minimum in (
@@ -92,5 +96,6 @@ class TrackerConfig:
         for name in ("ransac_threshold_px", "refine_max_px"):
             if getattr(self, name) is not None:
                 as_number(getattr(self, name), name, above=0.0)
-        if not isinstance(self.wide_baseline, bool):
-            raise InputError(f"wide_baseline: expected true or false, got {self.wide_baseline!r}")
+        for name in ("wide_baseline", "compensate_exposure"):
+            if not isinstance(getattr(self, name), bool):
+                raise InputError(f"{name}: expected true or false, got {getattr(self, name)!r}")

@@ -57,6 +57,7 @@ from hvo_graph.frontend._klt import (
     predict,
     prediction_miss,
 )
+from hvo_graph.frontend.exposure import ExposureCompensation
 from hvo_graph.frontend.reidentify import LostTracks, find_again
 from hvo_graph.frontend.target import TargetSpec, board_margin, detect_target
 from hvo_graph.frontend.tracker_config import WIDE_BASELINE_FRACTION, TrackerConfig
@@ -106,8 +107,7 @@ class FeatureTracker:
         self.camera = camera
         self.config = config or TrackerConfig()
         self.target = target
-        # The camera for the pinhole <-> raw pixel maps, None when they are the identity
-        # (no distortion): the maps then skip the per-call check.
+        # The pinhole <-> raw pixel maps' camera; None without distortion (no per-call check).
         self._lens = camera if camera.has_distortion else None
         # The target's corners in the last image (raw pixels, board points), or None.
         self._found: tuple[np.ndarray, np.ndarray] | None = None
@@ -123,10 +123,10 @@ class FeatureTracker:
         self._birth = np.empty(0, dtype=np.int64)
         self._birth_uv = np.empty((0, 2), dtype=np.float32)
         self._birth_images: dict[int, np.ndarray] = {}
-        # Per first-sight frame b: image b undistorted, and the homography from it to the
-        # last image (pinhole pixels).
+        # Per first-sight frame b: the homography from image b to the last (pinhole pixels).
         self._warps: dict[int, np.ndarray] = {}
         self._next_id = 0
+        self._exposure = ExposureCompensation() if self.config.compensate_exposure else None
         # The last frame-to-frame plane homography of plain KLT (pinhole pixels) and the
         # largest distance between a kept track and its prediction; (None, nan): none.
         self._motion: tuple[np.ndarray | None, float] = (None, np.nan)
@@ -155,6 +155,7 @@ class FeatureTracker:
         if self._t is not None and not t > self._t:
             raise InputError(f"{name}: time {t} does not increase (previous {self._t})")
         found = detect_target(gray, self.target) if self.target is not None else None
+        gray = self._exposure(gray) if self._exposure is not None else gray
         pinhole = pinhole_image(self._lens, gray)
         motion, self._motion = self._motion, (None, np.nan)  # set again by plain KLT
         if self._image is not None and len(self._points):
