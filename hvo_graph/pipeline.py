@@ -18,6 +18,8 @@ from collections.abc import Sequence
 from dataclasses import dataclass
 from typing import Protocol
 
+import numpy as np
+
 from hvo_graph.errors import InputError
 from hvo_graph.estimators.base import Estimator
 from hvo_graph.estimators.registry import (
@@ -125,9 +127,38 @@ def measure(
     """Per-frame measurements for ``method``: with its registry row's pose solver
     (IPPE poses for "ippe", H_d otherwise) and the :data:`FRONT_END_OPTIONS` given
     (without a pixel sigma, given or in ``scene``: the tracks' own, :func:`pixel_noise`)."""
+    check_plane(observations, scene, method)
     pixel_noise(observations, scene, front_end)
     config = front_end_config(scene, method=method, **front_end)
     return measure_sequence(observations, scene.camera, scene.plane, config)
+
+
+def check_plane(
+    observations: Sequence[FrameObservations], scene: SceneLike, method: str = "smoother"
+) -> None:
+    """An InputError naming ``plane.normal`` when ``method`` needs n* and the scene has
+    none (IPPE), or when most points of the first frame with points lie behind the plane
+    as given (n*^T m <= 0 for their normalized rays m): n* points from the camera
+    towards the plane, and a flipped sign would otherwise give a mirrored motion or a
+    failure deep in the front end."""
+    normal = scene.plane.normal
+    if normal is None and registry_method(method).pose_solver == "ippe":
+        raise InputError(
+            f"plane.normal: required by method {method!r} (IPPE does not estimate n*; "
+            "the homography methods do)"
+        )
+    first = next((o for o in observations if len(o.ids)), None)
+    if normal is None or first is None:
+        return
+    m = scene.camera.pixel_to_normalized(np.asarray(first.uv, dtype=float).reshape(-1, 2))
+    behind = int(np.count_nonzero(m @ np.asarray(normal) <= 0))
+    if 2 * behind > len(m):
+        flipped = ", ".join(f"{0.0 - float(c):g}" for c in normal)
+        raise InputError(
+            f"plane.normal: {behind} of the {len(m)} points of frame {first.index} are behind "
+            f"the plane as given (n*^T m <= 0); n* points from the camera towards the plane "
+            f"(the flipped normal would be [{flipped}])"
+        )
 
 
 def pixel_noise(
@@ -261,6 +292,7 @@ def run_estimate(
     """:func:`estimate`, keeping what a report needs (the estimator, the measurements)."""
     _check_method(method)
     front = {k: options.pop(k) for k in list(options) if k in FRONT_END_OPTIONS}
+    check_plane(observations, scene, method)
     noise = pixel_noise(observations, scene, front)
     if online:
         options["online"] = True

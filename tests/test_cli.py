@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+import re
 import shutil
 import subprocess
 import sys
@@ -205,6 +206,51 @@ def test_bad_inputs_exit_2_with_one_line(tmp_path):
     assert_one_line_error(
         run("estimate", "--camera", camera, "--tracks", tracks, "--fps", "30", "--out", "x"),
         "--fps: only for --images input",
+    )
+
+
+@pytest.mark.parametrize("method", ["smoother", "ippe"])
+def test_a_flipped_plane_normal_is_named_and_writes_nothing(tmp_path, method):
+    # n* points from the camera towards the plane; flipped, every point of frame 0 is
+    # behind it (n*^T m <= 0). IPPE used to run on and write a mirrored trajectory.
+    sim = tmp_path / "sim"
+    assert main(["simulate", "--out", str(sim), "--duration", "1"]) == 0
+    text = (sim / "camera.yaml").read_text()
+    n = re.search(r"normal: \[([^\]]*)\]", text)
+    assert n is not None
+    normal = [float(c) for c in n.group(1).split(",")]
+    flipped_text = ", ".join(repr(-c) for c in normal)
+    camera = tmp_path / "flipped.yaml"
+    camera.write_text(text.replace(n.group(0), f"normal: [{flipped_text}]"))
+    out = tmp_path / "out"
+    result = run(
+        "estimate", "--camera", str(camera), "--tracks", str(sim / "tracks.csv"),
+        "--method", method, "--out", str(out),
+    )  # fmt: skip
+    original = ", ".join(f"{c:g}" for c in normal)
+    assert_one_line_error(
+        result,
+        f"{camera}: plane.normal: 4 of the 4 points of frame 0 are behind the plane as given "
+        "(n*^T m <= 0); n* points from the camera towards the plane (the flipped normal "
+        f"would be [{original}])",
+    )
+    assert not out.exists()
+
+
+def test_ippe_without_a_plane_normal_names_the_camera_file_key(tmp_path):
+    sim = tmp_path / "sim"
+    assert main(["simulate", "--out", str(sim), "--duration", "1"]) == 0
+    camera = tmp_path / "no_normal.yaml"
+    lines = (sim / "camera.yaml").read_text().splitlines()
+    camera.write_text("\n".join(line for line in lines if "normal:" not in line) + "\n")
+    result = run(
+        "estimate", "--camera", str(camera), "--tracks", str(sim / "tracks.csv"),
+        "--method", "ippe", "--out", str(tmp_path / "out"),
+    )  # fmt: skip
+    assert_one_line_error(
+        result,
+        f"{camera}: plane.normal: required by method 'ippe' (IPPE does not estimate n*; "
+        "the homography methods do)",
     )
 
 

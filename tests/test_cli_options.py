@@ -59,7 +59,8 @@ def estimate_args(sim_dir, out, *extra):
         ),
         (
             ["--method", "measurements", "--covariance"],
-            "--covariance: does not apply to method 'measurements'",
+            "--covariance: does not apply to method 'measurements' (it applies to smoother, "
+            "batch, fixed-lag, kalman, tight, tight-batch, tight-fixed-lag)",
         ),
         (
             ["--method", "batch", "--relinearize-skip", "3"],

@@ -245,6 +245,11 @@ def test_tracks_large_file_and_error_on_its_last_line(tmp_path):
         ),
         ("1,0.1,0,101.0,199.0", "1.5,0.1,0,101.0,199.0", ":4: column 'frame': expected an integer"),
         ("1,0.1,7,50.0,60.0", "1,0.1,7.2,50.0,60.0", ":6: column 'id': expected an integer"),
+        (  # beyond 2^53 a float64 no longer holds every integer: ids would merge
+            "1,0.1,7,50.0,60.0",
+            "1,0.1,9007199254740993,50.0,60.0",
+            ":6: column 'id': expected an integer below 2^53",
+        ),
         ("1,0.1,7,50.0,60.0", "1,0.2,7,50.0,60.0", ":6: column 't': expected the same time"),
         ("0.1", "0.0", ":4: column 't': time must increase strictly"),
         (

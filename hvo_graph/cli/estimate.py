@@ -271,7 +271,15 @@ def run(args: argparse.Namespace) -> int:
     )
     progress(f"estimating {len(observations)} frames with --method {args.method}")
     start = time.perf_counter()
-    run = run_estimate(observations, scene, method=args.method, **options)
+    try:
+        run = run_estimate(observations, scene, method=args.method, **options)
+    except InputError as exc:  # say where the normal came from
+        if not str(exc).startswith("plane.normal:") or args.plane == "auto":
+            raise
+        given = (
+            "--plane-normal" if args.plane_normal is not None else f"{args.camera}: plane.normal"
+        )
+        raise InputError(given + str(exc).removeprefix("plane.normal")) from None
     seconds = time.perf_counter() - start
     progress(f"done in {seconds:.1f} s")
     record = {

@@ -379,7 +379,7 @@ def check_applicable(name: str, given: Iterable[str], *, spell: Callable[[str], 
                 f"{', '.join(spell(o) for o in OPTION_NAMES)}"
             )
         if option not in record.options:
-            users = [m.name for m in METHODS if option in m.options and m.build is not None]
+            users = [m for m in COMMAND_METHODS if option in BY_NAME[m].options]
             raise InputError(
                 f"{spell(option)}: does not apply to method {name!r} "
                 f"(it applies to {', '.join(users) or 'no method'})"

@@ -128,7 +128,7 @@ def read_track_table(path: PathLike) -> TrackTable:
     for col, values in (("frame", frame), ("id", ids)):
         row = first_line((values != np.floor(values)) | (np.abs(values) >= _MAX_INT), linenos)
         if row is not None:
-            raise InputError(f"{path}:{row}: column '{col}': expected an integer")
+            raise InputError(f"{path}:{row}: column '{col}': expected an integer below 2^53")
     row = first_line(frame < 0, linenos)
     if row is not None:
         raise InputError(f"{path}:{row}: column 'frame': expected an integer >= 0")
