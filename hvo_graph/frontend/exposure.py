@@ -1,18 +1,20 @@
-"""Exposure compensation: every image mapped to the first one's brightness and contrast.
+"""Exposure compensation: every image brought to the first one's brightness.
 
 Lucas-Kanade assumes brightness constancy: a patch looks the same in the next
-image. A camera's auto exposure breaks it for every patch at once (a gain and an
-offset that change from frame to frame, smoothly or in steps), and KLT then
-follows the brightness change instead of the motion: tracks drift by pixels or
-are lost. Mapping each image's mean and standard deviation onto the first
-image's removes a global gain and offset.
+image. A camera's auto exposure breaks it for every patch at once: exposure time
+and analog gain scale the light, and the image by a common factor (gamma keeps
+it a factor), from frame to frame, smoothly or in steps. KLT then follows the
+brightness change instead of the motion: tracks drift by pixels or are lost.
+Dividing each image by its gain relative to the first image, the ratio of the
+mean gray levels, restores constancy.
 
-The statistics also move a little with the content as the camera moves (about a
-gray level and 1% over a second of the image experiment's renders); re-mapping
-for that would itself be a brightness change. :class:`ExposureCompensation`
-keeps its mapping while the image's statistics stay within
-:data:`MEAN_TOLERANCE` and :data:`STD_TOLERANCE` of those it was made from: under
-a constant exposure every image is tracked exactly as it was taken.
+Only the mean is used: a blur or a defocus lowers the contrast at the same mean,
+and stretching it back would track through images where no corner survives.
+The mean also moves a little with the content as the camera moves (about a
+gray level over a second of the image experiment's renders); re-scaling for
+that would itself be a brightness change. :class:`ExposureCompensation` keeps
+its gain while the image's mean stays within :data:`GAIN_TOLERANCE` of the one
+it was taken from: under a constant exposure every image is tracked as taken.
 """
 
 from __future__ import annotations
@@ -20,52 +22,34 @@ from __future__ import annotations
 import cv2
 import numpy as np
 
-#: A new mapping when the image mean moves by more than this (gray levels) ...
-MEAN_TOLERANCE = 2.0
-#: ... or its standard deviation by more than this fraction.
-STD_TOLERANCE = 0.02
-#: Least standard deviation (gray levels) of an image to take the exposure from.
-MIN_STD = 0.5
+#: A new gain when the image mean moves by more than this fraction.
+GAIN_TOLERANCE = 0.02
+#: Least mean gray level of an image to take the exposure from.
+MIN_MEAN = 1.0
 
 
-def image_statistics(gray: np.ndarray) -> tuple[float, float]:
-    """(mean, standard deviation) of the gray levels of ``gray``."""
-    mean, std = cv2.meanStdDev(gray)
-    return float(mean[0, 0]), float(std[0, 0])
-
-
-def matched_exposure(
-    gray: np.ndarray, statistics: tuple[float, float], target: tuple[float, float]
-) -> np.ndarray:
-    """``gray`` (H, W) uint8 under the gain and offset that take ``statistics``
-    (mean, std) to ``target``: g' = target_std / std (g - mean) + target_mean, rounded
-    and clipped to uint8."""
-    scale = target[1] / statistics[1]
-    offset = target[0] - scale * statistics[0]
-    out = gray.astype(np.float32) * np.float32(scale) + np.float32(offset)
-    return np.clip(np.rint(out), 0, 255).astype(np.uint8)
+def scaled_image(gray: np.ndarray, factor: float) -> np.ndarray:
+    """``gray`` (H, W) uint8 times ``factor``, rounded and clipped to uint8."""
+    return cv2.convertScaleAbs(gray, alpha=float(factor))
 
 
 class ExposureCompensation:
-    """:func:`matched_exposure` of a sequence onto its first textured image (std of at
-    least ``MIN_STD``), one image at a time; the mapping is kept while the statistics
-    stay within tolerance of those it was made from."""
+    """Each image of a sequence, one at a time, divided by its gain relative to the
+    first image with a mean of at least ``MIN_MEAN`` (the ratio of the means); the gain
+    is kept while the mean stays within ``GAIN_TOLERANCE`` of the one it came from."""
 
     def __init__(self) -> None:
-        self.target: tuple[float, float] | None = None  # the first textured image's
-        self.statistics: tuple[float, float] | None = None  # of the mapping in use
+        self.reference_mean: float | None = None  # the first image's
+        self.mean: float | None = None  # of the gain in use
 
     def __call__(self, gray: np.ndarray) -> np.ndarray:
-        mean, std = image_statistics(gray)
-        if std < MIN_STD:
+        mean = float(cv2.mean(gray)[0])
+        if mean < MIN_MEAN:
             return gray
-        kept = self.statistics
-        if (
-            kept is None
-            or abs(mean - kept[0]) > MEAN_TOLERANCE
-            or abs(std - kept[1]) > STD_TOLERANCE * kept[1]
-        ):
-            self.statistics = kept = (mean, std)
-        if self.target is None:
-            self.target = kept
-        return gray if kept == self.target else matched_exposure(gray, kept, self.target)
+        if self.mean is None or abs(mean - self.mean) > GAIN_TOLERANCE * self.mean:
+            self.mean = mean
+        if self.reference_mean is None:
+            self.reference_mean = mean
+        if self.mean == self.reference_mean:
+            return gray
+        return scaled_image(gray, self.reference_mean / self.mean)

@@ -47,8 +47,8 @@ class TrackerConfig:
             least 8), look for them again in each of this many later frames and
             resume the ones found under their old ids
             (:mod:`hvo_graph.frontend.reidentify`); 0: never.
-        compensate_exposure: map every image's gain and offset onto the first
-            image's before tracking (:class:`~hvo_graph.frontend.exposure.ExposureCompensation`):
+        compensate_exposure: divide every image by its gain relative to the first
+            image before tracking (:class:`~hvo_graph.frontend.exposure.ExposureCompensation`):
             KLT assumes constant brightness, which a camera's auto exposure breaks.
     """
 
