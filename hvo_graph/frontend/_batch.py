@@ -248,6 +248,8 @@ def _poses(
     if gated:
         keep = fit.chi2(lin, info) <= cfg.outlier_chi2
         bad |= np.count_nonzero(keep, axis=1) < cfg.min_points
+        # RANSAC and the gate both left points out: ``process`` also tries every point.
+        bad |= np.any(~start, axis=1) & np.any(~keep, axis=1)
     refit = np.flatnonzero(np.any(keep != start, axis=1) & ~bad)
     w = keep.astype(float)
     if len(refit):  # the gate changed the points: refine again on those it kept
@@ -266,9 +268,11 @@ def _poses(
 def _reject(front: MeasurementFrontEnd, ids: np.ndarray, keep: np.ndarray) -> int:
     """Count the gate's rejections frame by frame as ``process`` does; returns the frames
     up to and including the first that excludes a track (the next sees other tracks)."""
-    for k in np.flatnonzero(~keep.all(axis=1)).tolist():
+    for k in range(len(keep)):
+        if not front._rejections and keep[k].all():
+            continue  # nothing to count, no count to end
         excluded = len(front._excluded)
-        front._reject(ids[~keep[k]])
+        front._reject(ids[~keep[k]], ids[keep[k]])
         if len(front._excluded) != excluded:
             return k + 1
     return len(keep)

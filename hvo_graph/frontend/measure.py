@@ -41,6 +41,7 @@ from hvo_graph.frontend._points import (
     normalized_by_id,
     shared_count,
 )
+from hvo_graph.frontend.pose_gate import gated_pose
 from hvo_graph.frontend.velocity import flow_twist, mid_interval_plane
 from hvo_graph.geometry._fit import PlaneTransfer, dlt, euclidean, known_normal_motion
 from hvo_graph.geometry.camera import CameraModel
@@ -112,8 +113,9 @@ class FrontEndConfig:
             pose refined again; None: no gate. Off-plane points agree with the
             plane until the camera has moved (parallax), so this catches what
             the first frames' RANSAC cannot.
-        reject_after: a track rejected in this many frames is left out of every
-            later pose and velocity (it does not lie on the plane); None: never.
+        reject_after: a track rejected in this many consecutive frames where it
+            is measured is left out of every later pose and velocity (it does not
+            lie on the plane); None: never.
         refine_iterations: Gauss-Newton steps refining the homography pose.
         pose_solver: "homography" (the paper's H_d) or "ippe" (OpenCV solvePnP).
         min_parallax: ||T|| / d* a frame needs before its decomposition is
@@ -194,7 +196,7 @@ class MeasurementFrontEnd:
         if self.config.pose_solver == "ippe" and self._normal is None:
             raise InputError("pose_solver 'ippe' needs the plane normal in the camera file")
         self._normal_candidates: list[list[np.ndarray]] = []
-        #: frames in which each track id was rejected; ids at ``reject_after`` are excluded.
+        #: consecutive frames each track id was rejected in; at ``reject_after``: excluded.
         self._rejections: dict[int, int] = {}
         self._excluded: set[int] = set()
         self._rejected_ids: list[int] = []  # the current frame's gate rejections
@@ -266,9 +268,13 @@ class MeasurementFrontEnd:
         """Ids of the tracks left out as not on the plane (see ``reject_after``)."""
         return frozenset(self._excluded)
 
-    def _reject(self, ids: np.ndarray) -> None:
-        """Count one rejection for each id; exclude the ids that reached ``reject_after``."""
+    def _reject(self, ids: np.ndarray, kept: np.ndarray) -> None:
+        """One more consecutive rejection for ``ids``, the count ended for ``kept``; the ids
+        at ``reject_after`` excluded. (A good point's rare rejections recur over a long
+        sequence, its reference pixel error being shared; an off-plane one's persist.)"""
         self._rejected_ids.extend(ids.tolist())
+        for i in kept.tolist() if self._rejections else ():
+            self._rejections.pop(i, None)
         limit = self.config.reject_after
         for i in ids.tolist():
             self._rejections[i] = self._rejections.get(i, 0) + 1
@@ -311,19 +317,13 @@ class MeasurementFrontEnd:
             R, T, start = motion
         # RANSAC's inliers start the refinement; the gate at the refined pose, on every
         # shared point, decides (RANSAC's mask comes from a noisy minimal sample).
-        robust = self.config.outlier_chi2 is not None and len(m_ref) >= ROBUST_MIN_POINTS
+        gate = self.config.outlier_chi2 if len(m_ref) >= ROBUST_MIN_POINTS else None
         steps = 0 if self.config.pose_solver == "ippe" else self.config.refine_iterations + 1
-        start_fit = fit if start.all() else fit.subset(start)
-        huber = HUBER if robust else None
-        R, T, info = start_fit.refine(R, T, steps + (3 if huber and steps else 0), huber)
-        lin = None  # the linearization at the final (R, T) on the points kept
-        keep = np.ones(len(m_ref), dtype=bool)
-        if self.config.outlier_chi2 is not None and len(m_ref) >= ROBUST_MIN_POINTS:
-            lin = fit.linearize(R, T)
-            keep = fit.chi2(lin, info) <= self.config.outlier_chi2
+        huber = HUBER if gate is not None else None
+        R, T, info, keep, lin = gated_pose(fit, R, T, start, steps, huber, gate)
         if np.count_nonzero(keep) < self.config.min_points:
             return None, None, None
-        self._reject(shared[~keep])
+        self._reject(shared[~keep], shared[keep])
         refit = not np.array_equal(keep, start)
         if not keep.all():
             fit, lin = fit.subset(keep), None
