@@ -278,6 +278,7 @@ class EstimateRun:
             "normal": [float(x) for x in fit.normal],
             "sigma_deg": fit.sigma_deg,
             "frames": len(fit.motions),
+            "translation_chi2": fit.translation_chi2,
         }
 
 

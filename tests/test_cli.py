@@ -237,6 +237,31 @@ def test_a_flipped_plane_normal_is_named_and_writes_nothing(tmp_path, method):
     assert not out.exists()
 
 
+def test_a_camera_that_does_not_translate_is_warned_about_the_fitted_normal(tmp_path):
+    from hvo_graph.io.config import SceneConfig, save_scene
+    from hvo_graph.io.tracks import write_tracks
+    from hvo_graph.types import Plane
+
+    s = simulate(
+        paper_scenario(duration=3.0, num_points=6, linear_amplitude=(0, 0, 0),
+                       angular_amplitude=(0.0, -0.05, 0.1))
+    )  # fmt: skip
+    camera, tracks = tmp_path / "camera.yaml", tmp_path / "tracks.csv"
+    save_scene(camera, SceneConfig(s.camera, Plane(s.plane.distance, None), s.pixel_sigma))
+    write_tracks(tracks, s.observations)
+    result = run(
+        "estimate", "--camera", str(camera), "--tracks", str(tracks), "--out", str(tmp_path / "o")
+    )
+    assert result.returncode == 0, result.stderr
+    assert "standard deviation 90.00 deg" in result.stderr
+    assert (
+        "hvo-graph estimate: warning: no frame translates measurably against the first "
+        "(the camera turns or stands still): these tracks cannot tell n*"
+    ) in result.stderr
+    record = json.loads((tmp_path / "o" / "run.json").read_text())
+    assert record["plane_normal_fit"]["translation_chi2"] < 27.34
+
+
 def test_ippe_without_a_plane_normal_names_the_camera_file_key(tmp_path):
     sim = tmp_path / "sim"
     assert main(["simulate", "--out", str(sim), "--duration", "1"]) == 0

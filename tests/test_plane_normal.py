@@ -13,7 +13,12 @@ import pytest
 from off_plane import with_off_plane_track
 
 from hvo_graph.eval.metrics import error_series, summarize
-from hvo_graph.frontend.normal_search import sequence_normal
+from hvo_graph.frontend.normal_search import (
+    TRANSLATION_ALPHA,
+    UNOBSERVED_SIGMA_DEG,
+    chi2_3_quantile,
+    sequence_normal,
+)
 from hvo_graph.geometry.plane_normal import refine_plane_normal
 from hvo_graph.pipeline import run_estimate
 from hvo_graph.sim.scenario import paper_scenario, simulate
@@ -119,6 +124,34 @@ def test_a_static_camera_leaves_the_normal_unobserved_and_the_error_bounded():
     trajectory = run_estimate(unknown.observations, unknown).trajectory
     errors = summarize(error_series(trajectory, s.groundtruth), t_start=0.5)
     assert errors.position_max < 0.03 and errors.orientation_max < 1.0, errors
+
+
+def test_the_translation_test_calls_the_normal_unobserved_only_without_translation(paper):
+    # Static and turning cameras: the joint fit's n* was 16-19 degrees off with a reported
+    # standard deviation of about 1 degree (its curvature comes from the fitted noise).
+    sigma = paper.pixel_sigma / paper.camera.mean_focal
+    limit = chi2_3_quantile(1.0 - TRANSLATION_ALPHA / 200)
+    for angular in [(0, 0, 0), (0.0, -0.05, 0.10)]:
+        s = simulate(
+            paper_scenario(
+                duration=10.0, num_points=6, seed=1, linear_amplitude=(0, 0, 0),
+                angular_amplitude=angular,
+            )
+        )  # fmt: skip
+        fit = sequence_normal(s.observations, s.camera, s.plane.distance, sigma)
+        assert fit is not None and fit.translation_chi2 is not None
+        assert fit.translation_chi2 < limit
+        assert fit.sigma_deg == pytest.approx(UNOBSERVED_SIGMA_DEG)
+    moving = sequence_normal(paper.observations, paper.camera, paper.plane.distance, sigma)
+    assert moving is not None and moving.translation_chi2 is not None
+    assert moving.translation_chi2 > 100 * limit and moving.sigma_deg < 1.0
+
+
+def test_the_chi2_quantile_matches_the_tables():
+    # chi^2 with 3 degrees of freedom: 7.815 (95 %), 11.345 (99 %), 16.266 (99.9 %).
+    assert chi2_3_quantile(0.95) == pytest.approx(7.8147, abs=1e-3)
+    assert chi2_3_quantile(0.99) == pytest.approx(11.3449, abs=1e-3)
+    assert chi2_3_quantile(0.999) == pytest.approx(16.2662, abs=1e-3)
 
 
 def test_the_smoother_without_the_normal_is_close_to_the_smoother_given_it(paper):

@@ -308,6 +308,8 @@ def run(args: argparse.Namespace) -> int:
         write_run_record(stage, record)
     _report_health(run.frames)
     if run.normal_fit is not None:
+        from hvo_graph.frontend.normal_search import UNOBSERVED_SIGMA_DEG
+
         fit = run.normal_fit
         normal = ", ".join(f"{x:.4f}" for x in fit.normal)
         print(
@@ -315,6 +317,13 @@ def run(args: argparse.Namespace) -> int:
             f"frames, standard deviation {fit.sigma_deg:.2f} deg",
             file=sys.stderr,
         )
+        if fit.sigma_deg >= UNOBSERVED_SIGMA_DEG:
+            print(
+                f"{PROG} estimate: warning: no frame translates measurably against the first "
+                "(the camera turns or stands still): these tracks cannot tell n*, and the "
+                "poses will be tilted once it moves; give the normal (plane.normal) if known",
+                file=sys.stderr,
+            )
     if run.pixel_noise is not None:
         sigma = f"{run.pixel_noise.sigma:.3g} px"
         print(

@@ -48,6 +48,9 @@ class NormalFit:
         reference: (P, 3) the reference's refined normalized points mu_i.
         iterations: Gauss-Newton iterations run.
         cost: the final robust cost (sum of squared whitened residuals, Huber beyond).
+        translation_chi2: the largest chi^2 of a frame's translation T_k against its
+            covariance (None: not tested); see
+            :func:`~hvo_graph.frontend.normal_search.sequence_normal`.
     """
 
     normal: np.ndarray
@@ -57,6 +60,7 @@ class NormalFit:
     reference: np.ndarray
     iterations: int
     cost: float
+    translation_chi2: float | None = None
 
     @property
     def sigma_deg(self) -> float:
