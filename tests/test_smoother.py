@@ -189,6 +189,25 @@ def test_isam2_and_fixed_lag_agree_with_the_batch_optimum(paper_truth):
         assert np.abs(trajectory.positions - batch.positions).max() < 2e-3
 
 
+@pytest.mark.parametrize("solver", SOLVERS)
+def test_offline_runs_fuse_like_online_ones(solver, paper_truth):
+    # Offline (online=False, the command line's run without --covariance), ISAM2 skips
+    # its window; batch and fixed-lag once skipped their motion factors with it and
+    # returned the raw measurements.
+    frames = measure(paper_truth, np.random.default_rng(2))
+    make = {"isam2": FactorGraphSmoother, "batch": BatchSmoother, "fixed-lag": FixedLagSmoother}
+    offline = make[solver]().run(frames, online=False)
+    online = make[solver]().run(frames)
+    assert np.abs(offline.positions - online.positions).max() < 1e-6
+    assert np.abs(offline.twists - online.twists).max() < 1e-5
+    raw = RawMeasurements().run(frames)
+    truth = paper_truth.trajectory()
+    assert (
+        summarize(error_series(offline, truth)).linear_velocity_rmse
+        < 0.5 * summarize(error_series(raw, truth)).linear_velocity_rmse
+    )
+
+
 # -- keyframes and gaps ----------------------------------------------------------------------
 
 

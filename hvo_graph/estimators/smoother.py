@@ -263,7 +263,8 @@ class FactorGraphSmoother(Estimator):
         if not self._indices:
             self.process_noise.fit_all(frames)
             self.acceleration_sigma = self.process_noise.sigma
-            self.backend.windowed = online or self.robust is not None
+            # Only ISAM2 can skip its window: the fixed-lag smoother is its window.
+            self.backend.windowed = online or self.robust is not None or self.solver != "isam2"
         for screened in measurement_checks.screened(frames, self.shared_reference_noise):
             self._screened = screened
             self.update(screened[0])
