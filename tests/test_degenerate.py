@@ -225,18 +225,23 @@ def test_a_filter_comes_out_of_a_hole_in_time_less_certain():
 
 
 def test_the_smoother_bridges_ten_percent_dropped_frames():
+    # Four drop patterns (one draw sits at 1.5x, the others at 0.9-1.2x): the mean decides.
     s = scenario(duration=3.0)
-    drop = set(np.random.default_rng(1).choice(np.arange(1, 91), 9, replace=False).tolist())
-    gapped = with_frames(s, lambda o: None if o.index in drop else o)
     full = run_estimate(s.observations, s, covariance=True).trajectory
-    bridged = run_estimate(gapped.observations, gapped, covariance=True).trajectory
-    assert len(bridged) == len(s.observations) - 9
-    errors = summarize(error_series(bridged, gapped.groundtruth), t_start=0.5)
     reference = summarize(error_series(full, s.groundtruth), t_start=0.5)
-    assert errors.position_rmse < 1.5 * reference.position_rmse
-    assert errors.linear_velocity_rmse < 1.5 * reference.linear_velocity_rmse
-    nees, twist_nees = trajectory_nees(bridged, gapped.groundtruth, t_start=0.5)
-    assert nees < 3.0 and twist_nees < 3.0
+    position, velocity = [], []
+    for seed in range(1, 5):
+        drop = set(np.random.default_rng(seed).choice(np.arange(1, 91), 9, replace=False).tolist())
+        gapped = with_frames(s, lambda o, drop=drop: None if o.index in drop else o)
+        bridged = run_estimate(gapped.observations, gapped, covariance=True).trajectory
+        assert len(bridged) == len(s.observations) - 9
+        errors = summarize(error_series(bridged, gapped.groundtruth), t_start=0.5)
+        position.append(errors.position_rmse / reference.position_rmse)
+        velocity.append(errors.linear_velocity_rmse / reference.linear_velocity_rmse)
+        nees, twist_nees = trajectory_nees(bridged, gapped.groundtruth, t_start=0.5)
+        assert nees < 3.0 and twist_nees < 3.0
+    assert np.mean(position) < 1.3 and max(position) < 1.6, position
+    assert np.mean(velocity) < 1.3 and max(velocity) < 1.6, velocity
 
 
 def test_a_sequence_with_nothing_measurable_is_a_one_line_error():
