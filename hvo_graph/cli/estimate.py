@@ -117,7 +117,7 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
         type=int_at_least(1),
         default=S,
         metavar="N",
-        help="exclude a track rejected in N consecutive frames (default 3)",
+        help="exclude a track rejected in N of its last 10 frames (default 3)",
     )
     model = est.add_argument_group("factor-graph and filter options")
     model.add_argument(

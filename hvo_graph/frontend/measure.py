@@ -62,23 +62,21 @@ from hvo_graph.types import (
 #: The paper's noisy run: pixel variance 0.05 px^2.
 DEFAULT_PIXEL_SIGMA = float(np.sqrt(0.05))
 
-#: Noise-free input still gets covariances from this pixel sigma (pixels).
-MIN_PIXEL_SIGMA = 1e-3
+MIN_PIXEL_SIGMA = 1e-3  # noise-free input still gets covariances from it (pixels)
 
-#: Automatic RANSAC threshold: this many pixel sigmas of transfer distance. The
-#: distance between a transferred reference point and its current observation
-#: has standard deviation sigma sqrt(2) per axis (two noisy observations); 5 sigma
-#: is its 99.7 % quantile, so RANSAC keeps nearly every inlier.
+#: Automatic RANSAC threshold: this many pixel sigmas of transfer distance (standard
+#: deviation sigma sqrt(2) per axis, two noisy observations; 5 sigma keeps nearly every
+#: inlier), and at least MIN_RANSAC_PX pixels (noise-free input).
 RANSAC_SIGMAS = 5.0
-
-#: The automatic RANSAC threshold is at least this many pixels (noise-free input).
 MIN_RANSAC_PX = 0.5
 
 #: Fewest shared points for RANSAC and the gates. With 5, a 4-point sample has one
 #: spare point to judge and a good point is often "rejected": on a near-hover draw
-#: with 5 points, one of them nearly collinear with two others, dropping a corner
-#: left a near-degenerate 4-point pose whose error was 3x its covariance (NEES 7).
+#: dropping a corner left a near-degenerate 4-point pose with 3x its error (NEES 7).
 ROBUST_MIN_POINTS = 6
+#: A track is excluded when rejected ``reject_after`` times within its last this many frames.
+REJECT_WINDOW = 10
+_WINDOW_MASK = (1 << REJECT_WINDOW) - 1
 
 #: Huber threshold (whitened residual norm) of the refinement the gate judges by: an
 #: off-plane track must not pull the pose towards itself and push good points out.
@@ -113,9 +111,9 @@ class FrontEndConfig:
             pose refined again; None: no gate. Off-plane points agree with the
             plane until the camera has moved (parallax), so this catches what
             the first frames' RANSAC cannot.
-        reject_after: a track rejected in this many consecutive frames where it
-            is measured is left out of every later pose and velocity (it does not
-            lie on the plane); None: never.
+        reject_after: a track rejected in this many of its last ``REJECT_WINDOW``
+            measured frames is left out of every later pose and velocity (it does
+            not lie on the plane); None: never.
         refine_iterations: Gauss-Newton steps refining the homography pose.
         pose_solver: "homography" (the paper's H_d) or "ippe" (OpenCV solvePnP).
         min_parallax: ||T|| / d* a frame needs before its decomposition is
@@ -196,7 +194,7 @@ class MeasurementFrontEnd:
         if self.config.pose_solver == "ippe" and self._normal is None:
             raise InputError("pose_solver 'ippe' needs the plane normal in the camera file")
         self._normal_candidates: list[list[np.ndarray]] = []
-        #: consecutive frames each track id was rejected in; at ``reject_after``: excluded.
+        #: each track id's recent gate verdicts (bits, 1: rejected; see ``_reject``).
         self._rejections: dict[int, int] = {}
         self._excluded: set[int] = set()
         self._rejected_ids: list[int] = []  # the current frame's gate rejections
@@ -269,16 +267,18 @@ class MeasurementFrontEnd:
         return frozenset(self._excluded)
 
     def _reject(self, ids: np.ndarray, kept: np.ndarray) -> None:
-        """One more consecutive rejection for ``ids``, the count ended for ``kept``; the ids
-        at ``reject_after`` excluded. (A good point's rare rejections recur over a long
-        sequence, its reference pixel error being shared; an off-plane one's persist.)"""
+        """Record the gate's verdicts; exclude ids rejected ``reject_after`` times in their
+        last ``REJECT_WINDOW`` frames (a good point's rare rejections recur over a long
+        sequence, its reference pixel error being shared; an off-plane one's come close)."""
         self._rejected_ids.extend(ids.tolist())
-        for i in kept.tolist() if self._rejections else ():
-            self._rejections.pop(i, None)
-        limit = self.config.reject_after
+        recent, limit = self._rejections, self.config.reject_after  # id -> verdict bits
+        for i in [i for i in kept.tolist() if i in recent] if recent else ():
+            recent[i] = (recent[i] << 1) & _WINDOW_MASK
+            if not recent[i]:
+                del recent[i]
         for i in ids.tolist():
-            self._rejections[i] = self._rejections.get(i, 0) + 1
-            if limit is not None and self._rejections[i] >= limit:
+            recent[i] = ((recent.get(i, 0) << 1) | 1) & _WINDOW_MASK
+            if limit is not None and recent[i].bit_count() >= limit:
                 self._excluded.add(i)
 
     # -- pose from H_d -------------------------------------------------------------------------
@@ -320,7 +320,7 @@ class MeasurementFrontEnd:
         gate = self.config.outlier_chi2 if len(m_ref) >= ROBUST_MIN_POINTS else None
         steps = 0 if self.config.pose_solver == "ippe" else self.config.refine_iterations + 1
         huber = HUBER if gate is not None else None
-        R, T, info, keep, lin = gated_pose(fit, R, T, start, steps, huber, gate)
+        R, T, info, keep, lin, _ = gated_pose(fit, R, T, start, steps, huber, gate)
         if np.count_nonzero(keep) < self.config.min_points:
             return None, None, None
         self._reject(shared[~keep], shared[keep])
