@@ -207,6 +207,11 @@ def test_bad_inputs_exit_2_with_one_line(tmp_path):
         run("estimate", "--camera", camera, "--tracks", tracks, "--fps", "30", "--out", "x"),
         "--fps: only for --images input",
     )
+    assert_one_line_error(
+        run("estimate", "--camera", camera, "--tracks", tracks, "--compensate-exposure",
+            "--out", "x"),
+        "--compensate-exposure: only for --images input",
+    )  # fmt: skip
 
 
 @pytest.mark.parametrize("method", ["smoother", "ippe"])

@@ -96,12 +96,12 @@ def auto_exposure():
 
 def test_tracks_follow_the_plane_through_auto_exposure(auto_exposure) -> None:
     camera, plane, truth, images = auto_exposure
-    tracks = track_images(images, truth.t, camera)
+    tracks = track_images(images, truth.t, camera, TrackerConfig(compensate_exposure=True))
     assert min(len(o.ids) for o in tracks) >= 50
     assert track_error(tracks, truth, camera, plane) < 0.05  # constant exposure: ~0.015 px
 
 
 def test_without_compensation_auto_exposure_moves_the_tracks(auto_exposure) -> None:
     camera, plane, truth, images = auto_exposure
-    tracks = track_images(images, truth.t, camera, TrackerConfig(compensate_exposure=False))
+    tracks = track_images(images, truth.t, camera)  # the default: no compensation
     assert track_error(tracks, truth, camera, plane) > 0.1

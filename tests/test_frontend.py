@@ -250,22 +250,6 @@ def test_a_wrong_five_point_consensus_does_not_cost_a_good_point():
     assert sum(f.num_rejected for f in frames) == 0
 
 
-def test_rejections_far_apart_do_not_exclude_a_track():
-    # Three rejections of one point, 12 frames apart: each a rare chi^2 excess of a good
-    # point, not a track off the plane (three within REJECT_WINDOW frames would be).
-    from hvo_graph.frontend.measure import REJECT_WINDOW
-
-    front = MeasurementFrontEnd(CAMERA, Plane(DISTANCE, NORMAL), FrontEndConfig())
-    ids, others = np.array([7]), np.array([1, 2, 3, 4, 5])
-    for k in range(3 * (REJECT_WINDOW + 2)):
-        rejected = k % (REJECT_WINDOW + 2) == 0
-        front._reject(ids if rejected else ids[:0], others if rejected else np.r_[others, 7])
-    assert front.excluded_tracks == frozenset()
-    for _ in range(3):
-        front._reject(ids, others)
-    assert front.excluded_tracks == {7}
-
-
 def test_bad_configuration_is_reported():
     with pytest.raises(InputError, match="pixel_sigma: expected a number >= 0"):
         FrontEndConfig(pixel_sigma=-1.0)

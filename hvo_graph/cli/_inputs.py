@@ -79,13 +79,10 @@ def track_recording(
     from hvo_graph.io.images import check_camera_size
     from hvo_graph.report.progress import ProgressBar
 
-    config = (
-        TrackerConfig()
-        if args.max_features is None
-        else TrackerConfig(
-            max_features=args.max_features, min_tracked=min(args.max_features // 2, 100)
-        )
-    )
+    features = {} if args.max_features is None else {"max_features": args.max_features}
+    if features:
+        features["min_tracked"] = min(args.max_features // 2, 100)
+    config = TrackerConfig(**features, compensate_exposure=bool(args.compensate_exposure))
     check_camera_size(recording.frames, scene.camera)
     progress(f"tracking features in {args.images} ({_LAYOUT_NAMES[recording.layout]})")
     # A bar with frames/s on a terminal; nothing when stderr is a pipe or a file.

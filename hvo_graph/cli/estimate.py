@@ -117,7 +117,7 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
         type=int_at_least(1),
         default=S,
         metavar="N",
-        help="exclude a track rejected in N of its last 10 frames (default 3)",
+        help="exclude a track rejected in N frames (default 3)",
     )
     model = est.add_argument_group("factor-graph and filter options")
     model.add_argument(
@@ -212,6 +212,10 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
         "--save-tracks", metavar="FILE", default=None, help="also write the tracks CSV here"
     )
     images.add_argument(
+        "--compensate-exposure", action="store_true", default=None,
+        help="divide each image by its gain relative to the first (auto exposure)",
+    )  # fmt: skip
+    images.add_argument(
         "--plane",
         choices=("auto",),
         default=None,
@@ -256,7 +260,7 @@ def run(args: argparse.Namespace) -> int:
         if args.save_tracks:
             write_tracks(args.save_tracks, observations)
     else:
-        for flag in ("fps", "topic", "max_features", "save_tracks"):
+        for flag in ("fps", "topic", "max_features", "save_tracks", "compensate_exposure"):
             if getattr(args, flag) is not None:
                 raise InputError(f"--{flag.replace('_', '-')}: only for --images input")
         if args.plane == "auto":

@@ -268,11 +268,9 @@ def _poses(
 def _reject(front: MeasurementFrontEnd, ids: np.ndarray, keep: np.ndarray) -> int:
     """Count the gate's rejections frame by frame as ``process`` does; returns the frames
     up to and including the first that excludes a track (the next sees other tracks)."""
-    for k in range(len(keep)):
-        if not front._rejections and keep[k].all():
-            continue  # nothing to count, no count to end
+    for k in np.flatnonzero(~keep.all(axis=1)).tolist():
         excluded = len(front._excluded)
-        front._reject(ids[~keep[k]], ids[keep[k]])
+        front._reject(ids[~keep[k]])
         if len(front._excluded) != excluded:
             return k + 1
     return len(keep)

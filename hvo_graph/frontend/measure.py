@@ -74,9 +74,6 @@ MIN_RANSAC_PX = 0.5
 #: spare point to judge and a good point is often "rejected": on a near-hover draw
 #: dropping a corner left a near-degenerate 4-point pose with 3x its error (NEES 7).
 ROBUST_MIN_POINTS = 6
-#: A track is excluded when rejected ``reject_after`` times within its last this many frames.
-REJECT_WINDOW = 10
-_WINDOW_MASK = (1 << REJECT_WINDOW) - 1
 
 #: Huber threshold (whitened residual norm) of the refinement the gate judges by: an
 #: off-plane track must not pull the pose towards itself and push good points out.
@@ -111,9 +108,8 @@ class FrontEndConfig:
             pose refined again; None: no gate. Off-plane points agree with the
             plane until the camera has moved (parallax), so this catches what
             the first frames' RANSAC cannot.
-        reject_after: a track rejected in this many of its last ``REJECT_WINDOW``
-            measured frames is left out of every later pose and velocity (it does
-            not lie on the plane); None: never.
+        reject_after: a track rejected in this many frames is left out of every
+            later pose and velocity (it does not lie on the plane); None: never.
         refine_iterations: Gauss-Newton steps refining the homography pose.
         pose_solver: "homography" (the paper's H_d) or "ippe" (OpenCV solvePnP).
         min_parallax: ||T|| / d* a frame needs before its decomposition is
@@ -194,7 +190,7 @@ class MeasurementFrontEnd:
         if self.config.pose_solver == "ippe" and self._normal is None:
             raise InputError("pose_solver 'ippe' needs the plane normal in the camera file")
         self._normal_candidates: list[list[np.ndarray]] = []
-        #: each track id's recent gate verdicts (bits, 1: rejected; see ``_reject``).
+        #: frames in which each track id was rejected; ids at ``reject_after`` are excluded.
         self._rejections: dict[int, int] = {}
         self._excluded: set[int] = set()
         self._rejected_ids: list[int] = []  # the current frame's gate rejections
@@ -266,19 +262,13 @@ class MeasurementFrontEnd:
         """Ids of the tracks left out as not on the plane (see ``reject_after``)."""
         return frozenset(self._excluded)
 
-    def _reject(self, ids: np.ndarray, kept: np.ndarray) -> None:
-        """Record the gate's verdicts; exclude ids rejected ``reject_after`` times in their
-        last ``REJECT_WINDOW`` frames (a good point's rare rejections recur over a long
-        sequence, its reference pixel error being shared; an off-plane one's come close)."""
+    def _reject(self, ids: np.ndarray) -> None:
+        """Count one rejection for each id; exclude the ids that reached ``reject_after``."""
         self._rejected_ids.extend(ids.tolist())
-        recent, limit = self._rejections, self.config.reject_after  # id -> verdict bits
-        for i in [i for i in kept.tolist() if i in recent] if recent else ():
-            recent[i] = (recent[i] << 1) & _WINDOW_MASK
-            if not recent[i]:
-                del recent[i]
+        limit = self.config.reject_after
         for i in ids.tolist():
-            recent[i] = ((recent.get(i, 0) << 1) | 1) & _WINDOW_MASK
-            if limit is not None and recent[i].bit_count() >= limit:
+            self._rejections[i] = self._rejections.get(i, 0) + 1
+            if limit is not None and self._rejections[i] >= limit:
                 self._excluded.add(i)
 
     # -- pose from H_d -------------------------------------------------------------------------
@@ -323,7 +313,7 @@ class MeasurementFrontEnd:
         R, T, info, keep, lin, _ = gated_pose(fit, R, T, start, steps, huber, gate)
         if np.count_nonzero(keep) < self.config.min_points:
             return None, None, None
-        self._reject(shared[~keep], shared[keep])
+        self._reject(shared[~keep])
         refit = not np.array_equal(keep, start)
         if not keep.all():
             fit, lin = fit.subset(keep), None
