@@ -225,8 +225,8 @@ def _poses(
     """The H_d pose of each frame as ``MeasurementFrontEnd._measure_pose`` from the points
     m_ref (N, 3), m (F, N, 3) it shares with the reference and RANSAC's inliers ``start``
     (F, N): (frames before the first that is not plain, then for those
-    R, T, info, the gate's keep (F, N), covariance, shared covariance, shared Jacobian
-    (F, 6, 2N))."""
+    R, T, the Huber threshold each (R, T) is the optimum with (None: least squares), the
+    gate's keep (F, N), covariance, shared covariance, shared Jacobian (F, 6, 2N))."""
     ref, cfg = front._reference, front.config
     assert ref is not None and front._normal is not None
     plane = front._plane_in(ref)
@@ -262,7 +262,10 @@ def _poses(
         bad |= more
     F = _first_bad(bad)
     lin = tuple(a[:F] for a in lin)
-    return (F, R[:F], T[:F], info[:F], keep[:F], *fit.noise(lin, w[:F]))
+    loss: list[float | None] = [hub] * F  # the loss each frame's (R, T) is the optimum of
+    for k in refit[refit < F].tolist():
+        loss[k] = None
+    return (F, R[:F], T[:F], loss, keep[:F], *fit.noise(lin, w[:F]))
 
 
 def _reject(front: MeasurementFrontEnd, ids: np.ndarray, keep: np.ndarray) -> int:
@@ -311,7 +314,7 @@ def _measure(
     start = _ransac(front, m_ref, m_cur[:F]) if robust else np.ones((F, S), dtype=bool)
     if len(start) == 0:
         return []
-    F, R, T, info, keep, covariance, shared_covariance, shared_jacobian = _poses(
+    F, R, T, loss, keep, covariance, shared_covariance, shared_jacobian = _poses(
         front, m_ref, m_cur[: len(start)], start, robust and cfg.outlier_chi2 is not None, huber
     )
     F = _reject(front, shared, keep[:F])
@@ -347,7 +350,7 @@ def _measure(
                 "reference_rotation": ref.R.T.copy(),
                 "reference_position": -ref.R.T @ ref.T,
                 "plane_jacobian": keyframe_plane_jacobian(
-                    R[k], T[k], m_ref[kept], m_cur[k][kept], plane, front._sigma, info[k]
+                    R[k], T[k], m_ref[kept], m_cur[k][kept], plane, front._sigma, loss[k]
                 ),
             }
         pose = PoseMeasurement(

@@ -310,7 +310,7 @@ class MeasurementFrontEnd:
         gate = self.config.outlier_chi2 if len(m_ref) >= ROBUST_MIN_POINTS else None
         steps = 0 if self.config.pose_solver == "ippe" else self.config.refine_iterations + 1
         huber = HUBER if gate is not None else None
-        R, T, info, keep, lin, _ = gated_pose(fit, R, T, start, steps, huber, gate)
+        R, T, _, keep, lin, _ = gated_pose(fit, R, T, start, steps, huber, gate)
         if np.count_nonzero(keep) < self.config.min_points:
             return None, None, None
         self._reject(shared[~keep])
@@ -319,7 +319,7 @@ class MeasurementFrontEnd:
             fit, lin = fit.subset(keep), None
             m_ref, m_cur = m_ref[keep], m_cur[keep]
         if refit:
-            R, T, info = fit.refine(R, T, steps)
+            R, T, _ = fit.refine(R, T, steps)
             lin = None
         R_rc = R.T.copy()  # the camera pose T_rc (camera_pose_from_motion)
         p_rc = -R.T @ T
@@ -335,7 +335,7 @@ class MeasurementFrontEnd:
                 "reference_rotation": R_wr,
                 "reference_position": p_wr,
                 "plane_jacobian": keyframe_plane_jacobian(
-                    R, T, m_ref, m_cur, plane, self._sigma, info
+                    R, T, m_ref, m_cur, plane, self._sigma, None if refit else huber
                 ),
             }
         pose = PoseMeasurement(
