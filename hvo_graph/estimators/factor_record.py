@@ -7,9 +7,14 @@ each pose measurement carries). The back ends (ISAM2, fixed-lag) do not keep
 every factor, so the smoother records them here as it adds them, and
 :meth:`FactorRecord.system` linearizes them at the final estimate.
 
-Factors on frames further apart than neighbours (a keyframe's between factor,
-a twist factor across a dropped frame) enter as if the earlier frame were
-known: the chain stays block tridiagonal.
+A keyframe's between factors reach back to the keyframe, further than a
+neighbour. So that the chain stays block tridiagonal, each frame measured
+against keyframe r carries a copy of X_r in its state ([pose; twist; X_r]),
+tied to the previous frame's copy (and the first one to X_r itself) by a stiff
+equality: every pose measured against r then shares r's error, as it does in
+the graph. Other factors on frames further apart than neighbours (a twist
+factor across a dropped frame, a keyframe that is not the latest one's) enter
+as if the earlier frame were known.
 """
 
 from __future__ import annotations
@@ -42,12 +47,19 @@ class FactorRecord:
     fixed: list[gtsam.NonlinearFactor] = field(default_factory=list)
     measurement: list[gtsam.NonlinearFactor] = field(default_factory=list)
     shared: list[_Shared] = field(default_factory=list)
+    #: Per frame in order: the keyframe its latest pose is against (0: the world frame).
+    keyframes: list[int] = field(default_factory=list)
 
     @property
     def rates(self) -> bool:
         """Whether the frames carry a twist rate A(k) (white-noise jerk: 18 states)."""
         keys = self.motion[0].keys() if self.motion else []
         return any(gtsam.Symbol(key).chr() == ord("a") for key in keys)
+
+    def add_frame(self, keyframe: int | None) -> None:
+        """The next frame: the keyframe of its pose (None: no pose, the last one's)."""
+        last = self.keyframes[-1] if self.keyframes else 0
+        self.keyframes.append(last if keyframe is None else keyframe)
 
     def add_shared(
         self,
@@ -63,18 +75,26 @@ class FactorRecord:
         self.shared.append(_Shared(factor, whitening, np.asarray(jacobian), ids))
 
     def system(
-        self, values: gtsam.Values, indices: Sequence[int], times: Sequence[float]
+        self,
+        values: gtsam.Values,
+        indices: Sequence[int],
+        times: Sequence[float],
+        keyframes: Sequence[int] | None = None,
     ) -> ChainSystem:
         """The linearized chain at ``values`` over the frames ``indices`` (in order);
-        per frame [pose tangent; twist] (and the twist rate with :attr:`rates`)."""
+        per frame [pose tangent; twist] (and the twist rate with :attr:`rates`), and the
+        keyframe copy when ``keyframes`` (per frame, the keyframe its latest pose is
+        against; 0: the world frame) names one (module docstring)."""
         K = len(indices)
-        state = 18 if self.rates else 12
+        base = 18 if self.rates else 12
         slot = {}
         for n, k in enumerate(indices):
             slot[X(k)] = (n, 0)
             slot[V(k)] = (n, 6)
             if self.rates:
                 slot[gtsam.symbol_shorthand.A(k)] = (n, 12)
+        copies = _keyframe_copies(indices, keyframes)
+        state = base + 6 if any(c is not None for c in copies) else base
         columns = _shared_columns(self.shared)
         out = {
             "motion_diagonal": np.zeros((K, state, state)),
@@ -92,7 +112,11 @@ class FactorRecord:
         jacobians = {}  # linearized once: the information, the gradient, the shared pull
         for factor in self.measurement + [s.factor for s in self.shared]:
             linear, places = _accumulate(
-                factor, values, slot, out["measurement"], out["measurement_upper"]
+                factor,
+                values,
+                _with_copy(factor, slot, copies, base),
+                out["measurement"],
+                out["measurement_upper"],
             )
             A, b = linear.jacobian()
             jacobians[id(factor)] = A
@@ -104,6 +128,8 @@ class FactorRecord:
             response = A.T @ (item.whitening @ item.jacobian)  # (6, 2N)
             cols = np.ravel([[2 * columns[i], 2 * columns[i] + 1] for i in item.ids])
             out["shared"][n, offset : offset + 6, cols] += response.T
+        if state > base:
+            _tie_copies(out, copies, base)
         return ChainSystem(times=np.asarray(times, dtype=float), **out)
 
     def covariances(
@@ -113,9 +139,11 @@ class FactorRecord:
         times: Sequence[float],
         *,
         anchored: bool,
+        keyframes: Sequence[int] | None = None,
     ) -> np.ndarray:
         """(K, 12, 12) covariance of the smoothed errors at the final (pose, twist) of each
-        frame; ``anchored``: the poses are reported relative to the first one's."""
+        frame; ``anchored``: the poses are reported relative to the first one's;
+        ``keyframes``: as :meth:`system` (None: those of :meth:`add_frame`)."""
         values = gtsam.Values()
         for k, (pose, twist) in zip(indices, finals, strict=True):
             values.insert(X(k), pose)
@@ -126,8 +154,65 @@ class FactorRecord:
         if anchored:
             anchor = finals[0][0]
             adjoint = np.array([pose.between(anchor).AdjointMap() for pose, _ in finals])
-        covariance = error_covariances(self.system(values, indices, times), anchor_adjoint=adjoint)
+        if keyframes is None and len(self.keyframes) == len(indices):
+            keyframes = self.keyframes
+        system = self.system(values, indices, times, keyframes)
+        covariance = error_covariances(system, anchor_adjoint=adjoint)
         return covariance[:, :12, :12]
+
+
+#: Information of the equality that ties a keyframe copy to the next frame's, relative to
+#: the largest measurement information of the chain: stiff, yet far from rounding.
+COPY_STIFFNESS: float = 1e6
+
+
+def _keyframe_copies(indices: Sequence[int], keyframes: Sequence[int] | None) -> list[int | None]:
+    """Per frame, the keyframe whose copy it carries: the keyframe its poses are against,
+    when that keyframe is the frame just before the run of frames measured against it
+    (or that run's copy goes on); None otherwise (the world frame, an older keyframe)."""
+    copies: list[int | None] = [None] * len(indices)
+    if keyframes is None:
+        return copies
+    position = {k: n for n, k in enumerate(indices)}
+    for n, r in enumerate(keyframes):
+        j = position.get(r) if r else None
+        if j is not None and (n == j + 1 or (n > j + 1 and copies[n - 1] == r)):
+            copies[n] = r
+    return copies
+
+
+def _with_copy(
+    factor: gtsam.NonlinearFactor,
+    slot: dict[int, tuple[int, int]],
+    copies: list[int | None],
+    base: int,
+) -> dict[int, tuple[int, int]]:
+    """``slot``, with the keyframe of a factor that reaches back to it mapped to the copy
+    in its newest frame's state."""
+    keys = factor.keys()
+    latest = max(slot[key][0] for key in keys)
+    r = copies[latest]
+    if r is None or X(r) not in keys or slot[X(r)][0] >= latest:
+        return slot
+    return {**slot, X(r): (latest, base)}
+
+
+def _tie_copies(out: dict[str, np.ndarray], copies: list[int | None], base: int) -> None:
+    """The stiff equalities copy_n = copy_n-1 (or = X_r at the keyframe's own frame) as
+    priors without random error (``fixed``, and the upper blocks of Lambda), and a unit
+    prior on the copies no frame uses (they stay out of everything else)."""
+    c = slice(base, base + 6)
+    pose = out["measurement"][:, :6, :6]
+    stiffness = COPY_STIFFNESS * max(float(np.abs(pose).max()), 1.0)
+    E = stiffness * np.eye(6)
+    for n, r in enumerate(copies):
+        if r is None:
+            out["fixed"][n, c, c] += np.eye(6)
+            continue
+        before = slice(base, base + 6) if copies[n - 1] == r else slice(0, 6)
+        out["fixed"][n - 1, before, before] += E
+        out["fixed"][n, c, c] += E
+        out["measurement_upper"][n - 1, before, c] -= E
 
 
 def _shared_columns(shared: Sequence[_Shared]) -> dict[int, int]:

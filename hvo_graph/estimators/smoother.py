@@ -193,8 +193,7 @@ class FactorGraphSmoother(Estimator):
         self.velocity_factors = velocity_factors
         #: H_c twist factors added, and left out by the "gaps" policy.
         self.velocity_factor_counts = {"used": 0, "skipped": 0}
-        # Reference covariance of each frame's latest pose (by position), reference by frame.
-        self._reference_cov: list[np.ndarray] = []
+        self._reference_cov: list[np.ndarray] = []  # of each frame's latest pose, by position
         self._last_reference: int | None = None  # of the latest frame's pose (None: none)
         if robust is not None and robust not in ROBUST_LOSSES:
             raise InputError(
@@ -309,26 +308,28 @@ class FactorGraphSmoother(Estimator):
         if self.shared_reference_noise and not self._world_posed and not self._anchored:
             self._anchor(graph, _ZERO66)  # frame k0 had no pose: W is its frame all the same
         model = measurement_checks.keyframe_model(pose, k)
-        current, in_graph = self.backend.current_pose(ref), self.backend.in_graph(ref)
-        factor, pose_guess = keyframe_pose_factor(k, ref, measured, noise, model, current, in_graph)
-        self._add(graph, factor, "measurement")
+        args = (k, ref, measured, noise, model, self.backend.current_pose(ref))
+        factor, pose_guess = keyframe_pose_factor(*args, in_graph := self.backend.in_graph(ref))
+        self._add(graph, factor, "measurement" if in_graph else "")
+        if not in_graph and self.record is not None:  # a fixed-lag window froze the keyframe:
+            self.record.measurement.append(keyframe_pose_factor(*args, True)[0])  # coupled
         return pose_guess
 
     def _anchor(self, graph: gtsam.NonlinearFactorGraph, reference: np.ndarray) -> None:
-        """X(k0) = I with the reference frame's noise: the H_d poses all carry its one
-        draw, so the graph estimates that offset as X(k0) and the poses are reported
-        relative to it (:meth:`_relative`) instead of bending the first motion."""
+        """X(k0) = I with the reference frame's noise: the H_d poses all carry its one draw,
+        estimated as X(k0); poses are reported relative to it (:meth:`_relative`)."""
         covariance = reference + self._world_sigma**2 * np.eye(6)
         noise = gtsam.noiseModel.Gaussian.Covariance(covariance)
         self._add(graph, gtsam.PriorFactorPose3(X(self._indices[0]), gtsam.Pose3(), noise), "fixed")
         self._anchored = True
 
     def _add(self, graph: gtsam.NonlinearFactorGraph, factor: object, role: str, stored=False):
-        """Add a factor to the graph, the back end's store (unless ``stored``), the record."""
+        """Add a factor to the graph, the back end's store (unless ``stored``), the record
+        (as ``role``; "": not)."""
         graph.add(factor)
         if not stored:
             self.backend.store.add_factor(factor)
-        if self.record is not None:
+        if self.record is not None and role:
             getattr(self.record, role).append(factor)
 
     def _update(self, frame: FrameMeasurement) -> StateEstimate:
@@ -339,7 +340,6 @@ class FactorGraphSmoother(Estimator):
         if twist_meas is not None and self._poses_span(k, pose_meas, twist_meas[2]):
             twist_meas = None
             self.velocity_factor_counts["skipped"] += 1
-
         graph = gtsam.NonlinearFactorGraph()
         first = not self._indices
         dt = 0.0 if first else t - self._times[-1]
@@ -347,6 +347,8 @@ class FactorGraphSmoother(Estimator):
         self._indices.append(k)
         self._times.append(t)
         self._last_reference = pose_meas[2] if pose_meas is not None else None
+        if self.record is not None:
+            self.record.add_frame(self._last_reference)
         shared = pose_meas[3] if pose_meas is not None and len(pose_meas) > 3 else None
         if shared is not None and pose_meas is not None and pose_meas[2] == 0:
             shared = _ZERO66  # in the graph: the anchor X(k0) carries it
@@ -390,14 +392,8 @@ class FactorGraphSmoother(Estimator):
                 covariance = self._with_anchor_noise(covariance, pose, anchor)
         self._pose, self._twist = pose, twist
         pose = self._relative(pose, anchor)
-        return StateEstimate(
-            index=k,
-            t=t,
-            rotation=pose.rotation().matrix(),
-            position=np.asarray(pose.translation(), dtype=float),
-            twist=np.asarray(twist, dtype=float),
-            covariance=covariance,
-        )
+        position, v = np.asarray(pose.translation(), dtype=float), np.asarray(twist, dtype=float)
+        return StateEstimate(k, t, pose.rotation().matrix(), position, v, covariance)
 
     def _add_start_or_motion(self, graph: gtsam.NonlinearFactorGraph, k: int, dt: float) -> None:
         """The first frame's priors, or the motion factors from the previous frame (as
