@@ -21,7 +21,12 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from hvo_graph.errors import InputError
-from hvo_graph.eval.consistency import keyframe_switches, pose_nees, track_error
+from hvo_graph.eval.consistency import (
+    keyframe_switches,
+    pose_nees,
+    track_error,
+    trajectory_nees,
+)
 from hvo_graph.eval.metrics import ErrorSummary, error_series, position_rmse_between, summarize
 from hvo_graph.frontend import FrontEndConfig, measure_sequence
 from hvo_graph.frontend.tracking import track_images
@@ -141,6 +146,8 @@ class ImageSeedResult:
             the plane point it was first seen at (ground truth), pixels.
         nees_world: mean NEES of the pose measurements against frame 0 (frames after 0).
         nees_keyframe: mean NEES of the pose measurements against keyframes (None: none).
+        estimate_nees: per method with covariances, (pose, twist) mean NEES per degree of
+            freedom of its estimates after ``config.skip`` seconds.
         distance_range: (min, max) distance from the camera centre to the plane, metres.
         seconds: wall-clock time of (images + tracks + front end, estimators).
         truth: the ground truth (kept for the figures).
@@ -164,16 +171,22 @@ class ImageSeedResult:
     nees_keyframe: float | None
     distance_range: tuple[float, float]
     seconds: tuple[float, float]
+    estimate_nees: dict[str, tuple[float, float]] = field(default_factory=dict)
     truth: Trajectory | None = None
     trajectories: dict[str, Trajectory] = field(default_factory=dict)
     sample: tuple[int, np.ndarray, list[FrameObservations], int, np.ndarray] | None = None
 
 
 def run_methods(
-    frames: Sequence[FrameMeasurement], methods: Sequence[str], seed: int
+    frames: Sequence[FrameMeasurement],
+    methods: Sequence[str],
+    seed: int,
+    *,
+    covariance: bool = False,
 ) -> dict[str, Trajectory]:
-    """Every method on the same measurements (one ISAM2 run for both smoother rows)."""
-    runs = MethodRuns(lambda _solver: frames, seed, methods=methods)
+    """Every method on the same measurements (one ISAM2 run for both smoother rows);
+    ``covariance``: the smoothers report their covariances too."""
+    runs = MethodRuns(lambda _solver: frames, seed, covariance=covariance, methods=methods)
     out: dict[str, Trajectory] = {}
     for label in methods:
         try:
@@ -209,16 +222,18 @@ def run_image_seed(
     )
     frames = measure_sequence(tracks, camera, plane, config.front_end())
     middle = time.perf_counter()
-    trajectories = run_methods(frames, methods, config.seed)
+    trajectories = run_methods(frames, methods, config.seed, covariance=True)
     seconds = (middle - start, time.perf_counter() - middle)
 
     t_start = float(truth.t[0]) + config.skip
     switches, keyframes = keyframe_switches(frames)
     t_switch = float(truth.t[switches[0]]) if switches else None
-    summaries, segments = {}, {}
+    summaries, segments, estimate_nees = {}, {}, {}
     for label, trajectory in trajectories.items():
         series = error_series(trajectory, truth)
         summaries[label] = summarize(series, t_start=t_start)
+        if trajectory.covariances is not None:
+            estimate_nees[label] = trajectory_nees(trajectory, truth, t_start=t_start)
         if t_switch is None:
             segments[label] = (position_rmse_between(series, t_start, math.inf), None)
         else:
@@ -242,6 +257,7 @@ def run_image_seed(
         nees_keyframe=nees_keyframe,
         distance_range=distance_range,
         seconds=seconds,
+        estimate_nees=estimate_nees,
     )
     if keep:
         result.truth = truth

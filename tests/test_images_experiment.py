@@ -63,6 +63,12 @@ def test_quick_run_writes_the_page_and_the_figures(quick_run) -> None:
     segments = table_rows(page, "### Position RMSE before and after the first keyframe switch")
     assert [r[0] for r in segments] == [r[0] for r in rows]
     assert all(c != "-" for r in segments for c in r[1:3])  # there was a switch: both segments
+    consistency = {r[0]: r[1:] for r in table_rows(page, "### Consistency of the reported")}
+    smoother = consistency[f"{METHOD_TITLES['smoother']} (`smoother`)"]
+    # the front end is told more pixel noise than the tracks have: at most honest
+    assert 0.1 < float(smoother[0]) < 1.5 and 0.1 < float(smoother[1]) < 1.5
+    assert f"{METHOD_TITLES['tight']} (`tight`)" in consistency
+    assert "`measurements`" not in " ".join(consistency)
     (seed_row,) = table_rows(page, "### Tracking, keyframes and measurement consistency")
     assert seed_row[0] == "0" and seed_row[1] != "none"
     assert seed_row[3].endswith("of 121")  # 4 s at 30 fps
