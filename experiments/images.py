@@ -66,6 +66,7 @@ from hvo_graph.image_runs import (
     PIXEL_SIGMA,
     ImageRunConfig,
     ImageSeedResult,
+    nees_table,
     run_image_seed,
 )
 from hvo_graph.report.figures import tracks_figure, trajectory_figure
@@ -165,17 +166,6 @@ def segment_table(results: Sequence[ImageSeedResult]) -> str:
         ]
         cells = [format_ci(_ci(values)) for values in (before, after, growth, ratio)]
         rows.append([_titled(label), *cells])
-    return markdown_table(header, rows)
-
-
-def consistency_table(results: Sequence[ImageSeedResult]) -> str:
-    """Mean NEES per degree of freedom of pose and twist, per method with covariances."""
-    header = ["method", "pose NEES per dof", "twist NEES per dof"]
-    rows = []
-    for label in METHODS:
-        if all(label in r.estimate_nees for r in results):
-            pose, twist = zip(*(r.estimate_nees[label] for r in results), strict=True)
-            rows.append([_titled(label), format_ci(_ci(pose)), format_ci(_ci(twist))])
     return markdown_table(header, rows)
 
 
@@ -280,37 +270,29 @@ def images_markdown(
         "",
         "### Consistency of the reported covariances",
         "",
-        "Mean over frames (t >= the skipped start) of the normalized estimation error "
-        "squared per degree of freedom, pose delta = Log(T_est^-1 T_true) against the "
-        "6 x 6 pose block and twist error against the twist block; 1 when the covariance "
-        "describes the errors, above 1 overconfident. The front end is told 0.02 px of "
-        "pixel noise, more than the tracks' error below, so values under 1 are expected.",
+        "NEES per dof of each estimate's pose and twist after the skipped start (1: honest; above "
+        "1: overconfident); the front end is told 0.02 px, more than the tracks' error below.",
         "",
-        consistency_table(results),
+        nees_table(results, METHODS),
         "",
         "### Tracking, keyframes and measurement consistency per seed",
         "",
         "Track error: RMS per coordinate of every observation against the projection of the "
-        "plane point the track was first seen at (ground truth). NEES: mean over frames of "
-        "delta^T C^-1 delta of the pose measurements (delta = Log(T_meas^-1 T_true) in the "
-        "reference frame, C the front end's covariance), against frame 0 and against "
-        "keyframes; about 6 when C describes the error, far above 6 when an error source is "
-        "missing from C.",
+        "plane point it was first seen at (ground truth). NEES: mean delta^T C^-1 delta of the "
+        "pose measurements (delta = Log(T_meas^-1 T_true) in the reference frame, C the front "
+        "end's covariance) against frame 0 and against keyframes; about 6 when C is honest.",
         "",
         seed_table(results),
         "",
         "### Methods",
         "",
-        "- raw measurements (`measurements`): the front end's per-frame pose (H_d, composed "
-        "with the measured keyframe pose) and twist (H_c), no fusion.",
+        "- raw measurements (`measurements`): the front end's H_d pose and H_c twist, no fusion.",
         "- Kalman (`kalman`): the paper's 12-state filter with the paper's noisy-run R_k.",
-        "- Kalman, measured R (`kalman-measured`): the same filter with R_k from the front "
-        "end's covariances and the smoother's process noise (hvo_graph.experiment).",
+        "- Kalman, measured R (`kalman-measured`): R_k from the front end's covariances.",
         "- ISAM2 smoothed / online (`smoother`, `smoother-online`): the factor graph, keyframe "
         "poses as between factors; final values, and each frame right after its update.",
         "- fixed-lag (`fixed-lag`): the same graph in a 1 s window.",
-        "- tight (`tight`): every tracked pixel as a projection factor on a landmark of the "
-        "plane, the same motion model, ISAM2 then the whole-graph solve.",
+        "- tight (`tight`): each tracked pixel a projection factor on a plane landmark.",
     ]
     if figures:
         lines += ["", "### Figures", ""]
@@ -457,7 +439,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     print()
     print(segment_table(results))
     print()
-    print(consistency_table(results))
+    print(nees_table(results, METHODS))
     print()
     print(seed_table(results))
     return 0

@@ -21,6 +21,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from hvo_graph.errors import InputError
+from hvo_graph.estimators.registry import METHOD_TITLES
 from hvo_graph.eval.consistency import (
     keyframe_switches,
     pose_nees,
@@ -28,10 +29,12 @@ from hvo_graph.eval.consistency import (
     trajectory_nees,
 )
 from hvo_graph.eval.metrics import ErrorSummary, error_series, position_rmse_between, summarize
+from hvo_graph.eval.stats import mean_ci
 from hvo_graph.frontend import FrontEndConfig, measure_sequence
 from hvo_graph.frontend.tracking import track_images
 from hvo_graph.geometry.camera import CameraModel
 from hvo_graph.montecarlo import MethodRuns
+from hvo_graph.report.tables import format_ci, markdown_table
 from hvo_graph.sim.images import (
     check_view,
     ground_truth,
@@ -272,3 +275,16 @@ def run_image_seed(
         history = list(tracks[max(0, k - TRAIL_FRAMES) : k + 1])
         result.sample = (k, image, history, reference, shared)
     return result
+
+
+def nees_table(results: Sequence[ImageSeedResult], methods: Sequence[str]) -> str:
+    """Markdown table: per method with covariances on every seed, the mean over seeds of
+    its pose and twist NEES per degree of freedom with 95 % confidence half-widths."""
+    rows = []
+    for label in methods:
+        if results and all(label in r.estimate_nees for r in results):
+            values = np.array([r.estimate_nees[label] for r in results])
+            pose, twist = values[:, 0], values[:, 1]
+            title = f"{METHOD_TITLES[label]} (`{label}`)"
+            rows.append([title, format_ci(mean_ci(pose)), format_ci(mean_ci(twist))])
+    return markdown_table(["method", "pose NEES per dof", "twist NEES per dof"], rows)

@@ -37,6 +37,7 @@ class _Shared:
     whitening: np.ndarray  # (6, 6) R with R^T R = the factor's information
     jacobian: np.ndarray  # (6, 2N) d eta / d rho
     ids: np.ndarray  # (N,) reference point ids
+    reference: int = 0  # the frame whose pixels they are (0: the world frame's)
 
 
 @dataclass
@@ -49,6 +50,8 @@ class FactorRecord:
     shared: list[_Shared] = field(default_factory=list)
     #: Per frame in order: the keyframe its latest pose is against (0: the world frame).
     keyframes: list[int] = field(default_factory=list)
+    #: The frames whose reference pixel noise the shared factors carry.
+    shared_references: set[int] = field(default_factory=set)
 
     @property
     def rates(self) -> bool:
@@ -67,12 +70,16 @@ class FactorRecord:
         covariance: np.ndarray,
         jacobian: np.ndarray,
         ids: np.ndarray,
+        reference: int = 0,
     ) -> None:
         """A pose measurement factor (noise ``covariance``, own pixels) whose error also
-        moves by ``jacobian`` (6, 2N) per unit of the reference points ``ids``' noise."""
+        moves by ``jacobian`` (6, 2N) per unit of the noise of the points ``ids`` in frame
+        ``reference`` (0: the world frame; a keyframe: the same draw for every pose
+        measured against it)."""
         # GTSAM's own whitening R (R^T R = covariance^-1), the one in the linearized A.
         whitening = gtsam.noiseModel.Gaussian.Covariance(covariance).R()
-        self.shared.append(_Shared(factor, whitening, np.asarray(jacobian), ids))
+        self.shared.append(_Shared(factor, whitening, np.asarray(jacobian), ids, reference))
+        self.shared_references.add(reference)
 
     def system(
         self,
@@ -119,15 +126,20 @@ class FactorRecord:
                 out["measurement_upper"],
             )
             A, b = linear.jacobian()
-            jacobians[id(factor)] = A
+            jacobians[id(factor)] = (A, places)
             for n, offset, column in places:
                 out["gradient"][n, offset : offset + 6] += A[:, column : column + 6].T @ b
         for item in self.shared:
-            A = jacobians[id(item.factor)]
-            ((n, offset),) = (slot[key] for key in item.factor.keys())
-            response = A.T @ (item.whitening @ item.jacobian)  # (6, 2N)
-            cols = np.ravel([[2 * columns[i], 2 * columns[i] + 1] for i in item.ids])
-            out["shared"][n, offset : offset + 6, cols] += response.T
+            A, places = jacobians[id(item.factor)]
+            response = A.T @ (item.whitening @ item.jacobian)  # (6 per key, 2N)
+            cols = np.ravel(
+                [
+                    [2 * columns[item.reference, i], 2 * columns[item.reference, i] + 1]
+                    for i in item.ids
+                ]
+            )
+            for n, offset, column in places:
+                out["shared"][n, offset : offset + 6, cols] += response[column : column + 6].T
         if state > base:
             _tie_copies(out, copies, base)
         return ChainSystem(times=np.asarray(times, dtype=float), **out)
@@ -215,9 +227,10 @@ def _tie_copies(out: dict[str, np.ndarray], copies: list[int | None], base: int)
         out["measurement_upper"][n - 1, before, c] -= E
 
 
-def _shared_columns(shared: Sequence[_Shared]) -> dict[int, int]:
-    ids = sorted({int(i) for item in shared for i in item.ids})
-    return {i: c for c, i in enumerate(ids)}
+def _shared_columns(shared: Sequence[_Shared]) -> dict[tuple[int, int], int]:
+    """A column pair per (reference frame, point id): each frame's pixels are their own draw."""
+    keys = sorted({(item.reference, int(i)) for item in shared for i in item.ids})
+    return {key: c for c, key in enumerate(keys)}
 
 
 def _accumulate(

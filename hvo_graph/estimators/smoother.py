@@ -297,23 +297,26 @@ class FactorGraphSmoother(Estimator):
             shared = pose_meas[3] if len(pose_meas) > 3 else None
             if shared is not None and not self._anchored:
                 self._anchor(graph, shared)
-            if self.record is not None:
-                if shared is not None and pose.reference_jacobian is not None:
-                    self.record.add_shared(
-                        factor, cov, pose.reference_jacobian, np.asarray(pose.reference_ids)
-                    )
-                else:
-                    self.record.measurement.append(factor)
+            self._record_pose(factor, pose, pose_meas)
             return measured
         if self.shared_reference_noise and not self._world_posed and not self._anchored:
             self._anchor(graph, _ZERO66)  # frame k0 had no pose: W is its frame all the same
         model = measurement_checks.keyframe_model(pose, k)
         args = (k, ref, measured, noise, model, self.backend.current_pose(ref))
         factor, pose_guess = keyframe_pose_factor(*args, in_graph := self.backend.in_graph(ref))
-        self._add(graph, factor, "measurement" if in_graph else "")
-        if not in_graph and self.record is not None:  # a fixed-lag window froze the keyframe:
-            self.record.measurement.append(keyframe_pose_factor(*args, True)[0])  # coupled
+        self._add(graph, factor, "")  # the record: coupled, where a fixed-lag window froze r
+        coupled = factor if in_graph else keyframe_pose_factor(*args, True)[0]
+        self._record_pose(coupled, pose, pose_meas)
         return pose_guess
+
+    def _record_pose(self, factor: object, pose: PoseMeasurement, pose_meas: tuple) -> None:
+        """The record's H_d factor, with the noise of its reference's pixels where known."""
+        split = len(pose_meas) > 3 and pose_meas[3] is not None
+        if self.record is not None and split and pose.reference_jacobian is not None:
+            ids, J = np.asarray(pose.reference_ids), pose.reference_jacobian
+            self.record.add_shared(factor, pose_meas[1], J, ids, pose_meas[2])  # type: ignore[arg-type]
+        elif self.record is not None:
+            self.record.measurement.append(factor)
 
     def _anchor(self, graph: gtsam.NonlinearFactorGraph, reference: np.ndarray) -> None:
         """X(k0) = I with the reference frame's noise: the H_d poses all carry its one draw,
@@ -423,8 +426,7 @@ class FactorGraphSmoother(Estimator):
     def _with_anchor_noise(
         self, covariance: np.ndarray, pose: gtsam.Pose3, anchor: gtsam.Pose3
     ) -> np.ndarray:
-        """Online poses are relative to the anchor's current estimate, whose error the
-        marginal of X(k) does not carry: add the anchor's marginal, moved to X(k)."""
+        """Online poses are relative to the anchor's estimate: add its marginal, moved to X(k)."""
         isam = getattr(self.backend, "isam", None)
         if isam is not None and isam.valueExists(X(self._indices[0])):
             self._anchor_covariance = isam.marginalCovariance(X(self._indices[0]))
@@ -474,7 +476,9 @@ class FactorGraphSmoother(Estimator):
                 finals, self._indices, self._times, anchored=self._anchored
             )
             smoothed[:, :6, :6] += self._world_sigma**2 * np.eye(6)
-            covariances[:] = [self._with_reference_noise(i, c) for i, c in enumerate(smoothed)]
+            modelled = self.record.shared_references  # their reference noise is in the chain
+            for i, (c, r) in enumerate(zip(smoothed, self.record.keyframes, strict=True)):
+                covariances[i] = c if r in modelled else self._with_reference_noise(i, c)
         return Trajectory(np.array(self._times), rotations, positions, twists, covariances)
 
 
