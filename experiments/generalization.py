@@ -42,6 +42,7 @@ from hvo_graph.eval.bounds import BOUND, BOUND_TITLE
 from hvo_graph.eval.metrics import QUANTITIES
 from hvo_graph.eval.stats import MeanCI, mean_ci
 from hvo_graph.montecarlo import (
+    BOUND_MAX_POINTS,
     FamilySeed,
     SeedResult,
     ratio_statistics,
@@ -225,7 +226,8 @@ def main(argv: Sequence[str] | None = None) -> int:
         f"- {BOUND_TITLE}: of the pose, from every pixel of the draw (plane points only; "
         "none of the dropped frames) and the white-noise-acceleration motion model with "
         "the process noise the smoother fitted on that draw; on average over seeds no "
-        "estimator knowing that model is below 1.",
+        "estimator knowing that model is below 1. Not computed (-) for draws of more than "
+        f"{BOUND_MAX_POINTS} plane points (the traverse: minutes per draw).",
         "- NEES: pose delta = Log(T_est^-1 T_true) against the 6x6 pose block, twist error "
         "against the twist block, divided by 6 and averaged over frames, then over seeds. "
         "A sequence's pose errors share one reference-frame offset, so one seed's pose NEES "

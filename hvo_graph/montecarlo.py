@@ -266,13 +266,22 @@ def _evaluate(
     return result
 
 
+#: Draws with more plane points than this get no bound (NaN): hundreds of landmarks, as
+#: a traverse over a field of points has, take minutes per draw.
+BOUND_MAX_POINTS = 100
+
+
 def bound_summary(
     scenario: Scenario, acceleration_sigma: tuple[float, float], t_start: float
 ) -> ErrorSummary:
     """The pose's posterior Cramér-Rao bound (:func:`~hvo_graph.eval.bounds.posterior_bound`)
     as an error summary over the frames an estimator is evaluated on: the observed frames
     with t >= ``t_start``. RMSE = sqrt(mean of the bound's traces), max = the largest
-    per-frame bound; velocity entries None. Noise-free pixels determine the pose: 0."""
+    per-frame bound; velocity entries None. Noise-free pixels determine the pose: 0.
+    NaN (not computed) beyond :data:`BOUND_MAX_POINTS` plane points."""
+    if len(scenario.points_world) > BOUND_MAX_POINTS:
+        nan = float("nan")
+        return ErrorSummary(nan, nan, nan, nan, None, None, None, None, frames=0)
     pose_bound = posterior_bound(scenario, acceleration_sigma)
     observed = np.array([int(o.index) for o in scenario.observations])
     keep = observed[pose_bound.t[observed] >= t_start]

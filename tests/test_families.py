@@ -46,3 +46,23 @@ def test_unknown_family_is_named():
         InputError, match=r"^family: expected one of paper-like, agile, .*got 'fast'$"
     ):
         draw("fast", 0)
+
+
+def test_a_traverse_sees_points_leave_and_enter_and_takes_keyframes():
+    from hvo_graph.pipeline import measure
+
+    scenario = draw("traverse", 0).scenario
+    first = scenario.observations[0].ids
+    shared = [len(np.intersect1d(first, o.ids)) for o in scenario.observations]
+    assert min(shared) == 0  # the view moved past every point the first frame saw
+    assert min(len(o.ids) for o in scenario.observations) >= 20
+    # the clean pixels are the points' projections by the ground truth, inside the image
+    truth, camera = scenario.groundtruth, scenario.camera
+    for k in (0, len(truth.t) // 2, len(truth.t) - 1):
+        obs = scenario.clean_observations[k]
+        X = (scenario.points_world[obs.ids] - truth.positions[k]) @ truth.rotations[k]
+        np.testing.assert_allclose(camera.project(X), obs.uv, atol=1e-9)
+        assert camera.in_view(obs.uv).all()
+    frames = measure(scenario.observations, scenario)
+    references = {f.pose.reference for f in frames if f.pose is not None}
+    assert len(references) >= 3 and all(f.pose is not None for f in frames)

@@ -56,7 +56,7 @@ def pose_nees(trajectory, poses, skip: int = 30) -> float:
 @pytest.mark.parametrize("method", ["smoother", "batch", "fixed-lag"])
 def test_poses_against_keyframes_have_honest_covariances(method):
     """Before keyframe copies in the error covariance, each pose was reported as if its
-    keyframe were exact: pose NEES per dof 31-199 on these draws (mean 114; now 1.5)."""
+    keyframe were exact: pose NEES per dof 31-199 on these draws (mean 114; now 0.9)."""
     nees, switches = [], []
     for seed in range(4):
         obs, poses = traverse(seed)

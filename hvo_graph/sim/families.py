@@ -9,7 +9,9 @@ harmonics 1-3, random amplitudes and phase). Together they span
 - 4-50 points, pixel noise 0.01-2 px^2;
 - 10-120 frames per second;
 - motion from near-hover to ~2 Hz, 1 m/s and 1 rad/s;
-- off-plane tracks (outliers) and dropped frames.
+- off-plane tracks (outliers) and dropped frames;
+- a traverse: the camera slides over a field of points that leave the view and
+  new ones that enter it, so the front end takes keyframes.
 
 A draw whose square of points does not fit the first image (a close plane)
 shrinks the square by 0.8 until it does, then one whose points would leave the
@@ -29,8 +31,14 @@ import numpy as np
 
 from hvo_graph.errors import InputError, as_integer
 from hvo_graph.geometry.camera import CameraModel
-from hvo_graph.sim.scenario import Scenario, ScenarioConfig, simulate
-from hvo_graph.types import FrameObservations, Plane
+from hvo_graph.sim.scenario import (
+    Scenario,
+    ScenarioConfig,
+    body_twist,
+    integrate_poses,
+    simulate,
+)
+from hvo_graph.types import FrameObservations, Plane, Trajectory
 
 #: First id given to an off-plane (outlier) track.
 OUTLIER_ID_START = 100_000
@@ -59,11 +67,16 @@ class FamilyDraw:
     dropped: tuple[int, ...] = ()
 
 
+#: Points a traverse's camera sees at once, on average over the draws (drawn in 40-90).
+TRAVERSE_VISIBLE = (40, 90)
+
+
 @dataclass(frozen=True)
 class _Recipe:
     config: ScenarioConfig
     outliers: int = 0
     drop_fraction: float = 0.0
+    traverse: bool = False
 
 
 def _plane(rng: np.random.Generator, tilt_deg: tuple[float, float]) -> Plane:
@@ -219,6 +232,26 @@ def _outliers_dropouts(rng: np.random.Generator) -> _Recipe:
     )
 
 
+def _traverse(rng: np.random.Generator) -> _Recipe:
+    # Sideways and forward up to ~1 m/s at 0.05-0.1 Hz (metres of travel), little
+    # towards the plane and little rotation: the view moves, the plane stays ahead.
+    motion = _motion(rng, (0.05, 0.1), 1.0, 0.05, harmonics=(1,))
+    vx, vy, vz = motion["linear_amplitude"]  # type: ignore[misc]
+    motion["linear_amplitude"] = (
+        float(np.sign(vx) * rng.uniform(0.5, 1.0)),
+        0.5 * float(vy),
+        0.05 * float(vz),
+    )
+    return _Recipe(
+        ScenarioConfig(
+            noise_var=float(rng.uniform(0.05, 0.5)),
+            plane=_plane(rng, (0, 20)),
+            **motion,  # type: ignore[arg-type]
+        ),
+        traverse=True,
+    )
+
+
 #: Every family: name -> (one-line description, recipe drawn from a seeded generator).
 FAMILIES: dict[str, tuple[str, Callable[[np.random.Generator], _Recipe]]] = {
     "paper-like": ("30 fps, 4-8 points, 0.05 px^2, 0.1 Hz motion, tilt 0-30 deg", _paper_like),
@@ -233,6 +266,10 @@ FAMILIES: dict[str, tuple[str, Callable[[np.random.Generator], _Recipe]]] = {
     "outliers-dropouts": (
         "12 points + 2 off-plane tracks, 10 % of frames dropped",
         _outliers_dropouts,
+    ),
+    "traverse": (
+        "30 fps, 0.05-0.5 px^2, up to 1 m/s over a field of points: they leave the view",
+        _traverse,
     ),
 }
 
@@ -255,7 +292,10 @@ def draw(family: str, seed: int, *, duration: float | None = None) -> FamilyDraw
     config = dataclasses.replace(recipe.config, seed=seed)
     if duration is not None:
         config = dataclasses.replace(config, duration=duration)
-    scenario = _simulate_in_view(config, family, seed)
+    if recipe.traverse:
+        scenario = _traverse_scenario(config, rng, family, seed)
+    else:
+        scenario = _simulate_in_view(config, family, seed)
     outliers, dropped = 0, ()
     if recipe.outliers:
         scenario = _with_off_plane_tracks(scenario, recipe.outliers, rng)
@@ -285,6 +325,59 @@ def _simulate_in_view(config: ScenarioConfig, family: str, seed: int) -> Scenari
                 angular_amplitude=tuple(0.8 * a for a in config.angular_amplitude),
             )
     raise InputError(f"family {family!r}, seed {seed}: no draw keeps the points in view")
+
+
+def _traverse_scenario(
+    config: ScenarioConfig, rng: np.random.Generator, family: str, seed: int
+) -> Scenario:
+    """The config's motion over a field of plane points covering every frame's view,
+    drawn so that a frame sees ~TRAVERSE_VISIBLE of them; each frame observes those in
+    its image (``view_margin``), so points leave and enter. Motions that bring the camera
+    within 0.4 d* of the plane shrink by 0.8."""
+    camera, plane = config.camera, config.plane
+    n, d = np.asarray(plane.normal, dtype=float), plane.distance
+    t = np.arange(config.num_frames) / config.fps
+    for _ in range(MAX_SHRINKS):
+        rotations, positions = integrate_poses(config, t)
+        if np.min(d - positions @ n) > 0.4 * d:
+            break
+        config = dataclasses.replace(
+            config, linear_amplitude=tuple(0.8 * a for a in config.linear_amplitude)
+        )
+    else:
+        raise InputError(f"family {family!r}, seed {seed}: no draw keeps the plane ahead")
+    w, h = camera.width, camera.height
+    corners = camera.pixel_to_normalized(np.array([[0.0, 0.0], [w, 0.0], [w, h], [0.0, h]]))
+    rays = np.einsum("kij,cj->kci", rotations, corners)  # (K, 4, 3) in W
+    depth = (d - positions @ n)[:, None] / (rays @ n)
+    if not np.all(depth > 0):
+        raise InputError(f"family {family!r}, seed {seed}: the view leaves the plane")
+    hits = positions[:, None, :] + depth[..., None] * rays
+    a = np.array([1.0, 0.0, 0.0]) - n[0] * n
+    a /= np.linalg.norm(a)
+    b = np.cross(n, a)
+    uv = np.stack((hits @ a, hits @ b), axis=-1)  # (K, 4, 2) plane coordinates
+    x, y = uv[0, :, 0], uv[0, :, 1]
+    footprint = 0.5 * abs(np.dot(x, np.roll(y, 1)) - np.dot(y, np.roll(x, 1)))
+    lo, hi = uv.reshape(-1, 2).min(axis=0), uv.reshape(-1, 2).max(axis=0)
+    count = int(np.prod(hi - lo) * rng.uniform(*TRAVERSE_VISIBLE) / footprint)
+    coords = rng.uniform(lo, hi, size=(min(max(count, 50), 20_000), 2))
+    points = d * n + coords[:, :1] * a + coords[:, 1:] * b
+    noise = np.random.default_rng(config.seed)
+    observations, clean_observations = [], []
+    for k, (R, p) in enumerate(zip(rotations, positions, strict=True)):
+        X = (points - p) @ R
+        front = np.flatnonzero(X[:, 2] > 1e-3)
+        clean = camera.project(X[front])
+        seen = front[camera.in_view(clean, margin=config.view_margin)]
+        clean = clean[camera.in_view(clean, margin=config.view_margin)]
+        noisy = clean + config.pixel_sigma * noise.standard_normal(clean.shape)
+        observations.append(FrameObservations(k, float(t[k]), seen, noisy))
+        clean_observations.append(FrameObservations(k, float(t[k]), seen.copy(), clean))
+    truth = Trajectory(t=t, rotations=rotations, positions=positions, twists=body_twist(config, t))
+    return Scenario(
+        config, camera, plane, points, truth, observations, clean_observations, config.pixel_sigma
+    )
 
 
 def _with_off_plane_tracks(scenario: Scenario, count: int, rng: np.random.Generator) -> Scenario:
