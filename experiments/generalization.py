@@ -121,8 +121,11 @@ def nees_statistics(results: Sequence[SeedResult], method: str) -> tuple[MeanCI,
 
 
 def geometric_mean(values: Sequence[float]) -> float:
-    """exp(mean(log x)): the summary of ratios over families."""
-    return math.exp(float(np.mean(np.log(values))))
+    """exp(mean(log x)) over the finite values: the summary of ratios over families (a
+    family without a value, such as the traverse's bound, is left out)."""
+    finite = np.asarray(values, dtype=float)
+    finite = finite[np.isfinite(finite)]
+    return math.exp(float(np.mean(np.log(finite)))) if finite.size else math.nan
 
 
 def family_tables(

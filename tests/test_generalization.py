@@ -158,3 +158,9 @@ def test_generalization_script_rejects_unknown_family(capsys):
         generalization.main(["--families", "fast"])
     assert exit_info.value.code == 2
     assert "fast" in capsys.readouterr().err
+
+
+def test_geometric_mean_leaves_out_families_without_a_value():
+    """The traverse family has no bound (NaN): the summary row is over the others."""
+    assert generalization.geometric_mean([0.5, float("nan"), 2.0]) == pytest.approx(1.0)
+    assert np.isnan(generalization.geometric_mean([float("nan")]))
