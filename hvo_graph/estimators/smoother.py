@@ -305,7 +305,7 @@ class FactorGraphSmoother(Estimator):
         args = (k, ref, measured, noise, model, self.backend.current_pose(ref))
         factor, pose_guess = keyframe_pose_factor(*args, in_graph := self.backend.in_graph(ref))
         self._add(graph, factor, "")  # the record: coupled, where a fixed-lag window froze r
-        coupled = factor if in_graph else keyframe_pose_factor(*args, True)[0]
+        coupled = factor if in_graph or not self.record else keyframe_pose_factor(*args, True)[0]
         self._record_pose(coupled, pose, pose_meas)
         return pose_guess
 
