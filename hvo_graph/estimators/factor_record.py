@@ -132,12 +132,8 @@ class FactorRecord:
         for item in self.shared:
             A, places = jacobians[id(item.factor)]
             response = A.T @ (item.whitening @ item.jacobian)  # (6 per key, 2N)
-            cols = np.ravel(
-                [
-                    [2 * columns[item.reference, i], 2 * columns[item.reference, i] + 1]
-                    for i in item.ids
-                ]
-            )
+            c = np.array([columns[item.reference, int(i)] for i in item.ids], dtype=int)
+            cols = np.ravel(np.column_stack((2 * c, 2 * c + 1)))
             for n, offset, column in places:
                 out["shared"][n, offset : offset + 6, cols] += response[column : column + 6].T
         if state > base:

@@ -36,6 +36,7 @@ from hvo_graph.sim.scenario import (
     ScenarioConfig,
     body_twist,
     integrate_poses,
+    plane_axes,
     simulate,
 )
 from hvo_graph.types import FrameObservations, Plane, Trajectory
@@ -353,9 +354,7 @@ def _traverse_scenario(
     if not np.all(depth > 0):
         raise InputError(f"family {family!r}, seed {seed}: the view leaves the plane")
     hits = positions[:, None, :] + depth[..., None] * rays
-    a = np.array([1.0, 0.0, 0.0]) - n[0] * n
-    a /= np.linalg.norm(a)
-    b = np.cross(n, a)
+    a, b = plane_axes(n)
     uv = np.stack((hits @ a, hits @ b), axis=-1)  # (K, 4, 2) plane coordinates
     x, y = uv[0, :, 0], uv[0, :, 1]
     footprint = 0.5 * abs(np.dot(x, np.roll(y, 1)) - np.dot(y, np.roll(x, 1)))
@@ -369,8 +368,8 @@ def _traverse_scenario(
         X = (points - p) @ R
         front = np.flatnonzero(X[:, 2] > 1e-3)
         clean = camera.project(X[front])
-        seen = front[camera.in_view(clean, margin=config.view_margin)]
-        clean = clean[camera.in_view(clean, margin=config.view_margin)]
+        inside = camera.in_view(clean, margin=config.view_margin)
+        seen, clean = front[inside], clean[inside]
         noisy = clean + config.pixel_sigma * noise.standard_normal(clean.shape)
         observations.append(FrameObservations(k, float(t[k]), seen, noisy))
         clean_observations.append(FrameObservations(k, float(t[k]), seen.copy(), clean))

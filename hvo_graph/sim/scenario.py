@@ -279,13 +279,20 @@ def integrate_poses(config: ScenarioConfig, t: np.ndarray) -> tuple[np.ndarray, 
     return rotations, positions
 
 
+def plane_axes(normal: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Two orthonormal (3,) directions in the plane of unit ``normal``: x projected onto
+    the plane, and normal x that."""
+    n = np.asarray(normal, dtype=float)
+    a = np.array([1.0, 0.0, 0.0]) - n[0] * n
+    a /= np.linalg.norm(a)
+    return a, np.cross(n, a)
+
+
 def plane_points(config: ScenarioConfig) -> np.ndarray:
     """(N, 3) points X* on the plane n*^T X* = d* (corners of the square first)."""
     n, d, s = config.plane.normal, config.plane.distance, config.half_size
     centre = np.array([0.0, 0.0, d / n[2]])
-    a = np.array([1.0, 0.0, 0.0]) - n[0] * n
-    a /= np.linalg.norm(a)
-    b = np.cross(n, a)
+    a, b = plane_axes(n)
     coords = np.array([[-1.0, -1.0], [1.0, -1.0], [1.0, 1.0], [-1.0, 1.0]]) * s
     extra = config.num_points - 4
     if extra > 0:
