@@ -8,13 +8,16 @@ every factor, so the smoother records them here as it adds them, and
 :meth:`FactorRecord.system` linearizes them at the final estimate.
 
 A keyframe's between factors reach back to the keyframe, further than a
-neighbour. So that the chain stays block tridiagonal, each frame measured
-against keyframe r carries a copy of X_r in its state ([pose; twist; X_r]),
-tied to the previous frame's copy (and the first one to X_r itself) by a stiff
-equality: every pose measured against r then shares r's error, as it does in
-the graph. Other factors on frames further apart than neighbours (a twist
-factor across a dropped frame, a keyframe that is not the latest one's) enter
-as if the earlier frame were known.
+neighbour. So that the chain stays block tridiagonal, every frame from r + 1 to
+the last one measured against keyframe r carries a copy of X_r in its state
+([pose; twist; copies]), tied to the previous frame's copy (and the first one
+to X_r itself) by a stiff equality: every pose measured against r then shares
+r's error, as it does in the graph. A keyframe the front end comes back to
+(points seen again after a loss) keeps its copy open until then, in a slot of
+its own while a later keyframe's copy runs beside it; treating it as known
+instead was a loop closure to an exact pose, and made every covariance before
+it 1.5-3x too small. Other factors on frames further apart than neighbours (a
+twist factor across a dropped frame) enter as if the earlier frame were known.
 """
 
 from __future__ import annotations
@@ -101,7 +104,7 @@ class FactorRecord:
             if self.rates:
                 slot[gtsam.symbol_shorthand.A(k)] = (n, 12)
         copies = _keyframe_copies(indices, keyframes)
-        state = base + 6 if any(c is not None for c in copies) else base
+        state = base + 6 * max((len(c) for c in copies), default=0)
         columns = _shared_columns(self.shared)
         out = {
             "motion_diagonal": np.zeros((K, state, state)),
@@ -174,53 +177,71 @@ class FactorRecord:
 COPY_STIFFNESS: float = 1e6
 
 
-def _keyframe_copies(indices: Sequence[int], keyframes: Sequence[int] | None) -> list[int | None]:
-    """Per frame, the keyframe whose copy it carries: the keyframe its poses are against,
-    when that keyframe is the frame just before the run of frames measured against it
-    (or that run's copy goes on); None otherwise (the world frame, an older keyframe)."""
-    copies: list[int | None] = [None] * len(indices)
+def _keyframe_copies(
+    indices: Sequence[int], keyframes: Sequence[int] | None
+) -> list[dict[int, int]]:
+    """Per frame, the keyframes whose copies it carries and their slots: keyframe r from
+    frame r + 1 to the last frame measured against it; a slot is free again after its
+    keyframe's last frame (few overlap: a keyframe the front end comes back to)."""
+    copies: list[dict[int, int]] = [{} for _ in indices]
     if keyframes is None:
         return copies
     position = {k: n for n, k in enumerate(indices)}
+    last: dict[int, int] = {}
     for n, r in enumerate(keyframes):
-        j = position.get(r) if r else None
-        if j is not None and (n == j + 1 or (n > j + 1 and copies[n - 1] == r)):
-            copies[n] = r
+        if r and r in position and position[r] < n:
+            last[r] = n
+    free_from: list[int] = []  # per slot, the first frame it is free again
+    for r in sorted(last, key=position.__getitem__):
+        start, end = position[r] + 1, last[r]
+        slot = next((s for s, f in enumerate(free_from) if f <= start), len(free_from))
+        if slot == len(free_from):
+            free_from.append(0)
+        free_from[slot] = end + 1
+        for n in range(start, end + 1):
+            copies[n][r] = slot
     return copies
 
 
 def _with_copy(
     factor: gtsam.NonlinearFactor,
     slot: dict[int, tuple[int, int]],
-    copies: list[int | None],
+    copies: list[dict[int, int]],
     base: int,
 ) -> dict[int, tuple[int, int]]:
-    """``slot``, with the keyframe of a factor that reaches back to it mapped to the copy
-    in its newest frame's state."""
+    """``slot``, with each keyframe a factor reaches back to mapped to its copy in the
+    factor's newest frame's state."""
     keys = factor.keys()
     latest = max(slot[key][0] for key in keys)
-    r = copies[latest]
-    if r is None or X(r) not in keys or slot[X(r)][0] >= latest:
-        return slot
-    return {**slot, X(r): (latest, base)}
+    carried = copies[latest]
+    moved = {
+        X(r): (latest, base + 6 * s)
+        for r, s in carried.items()
+        if X(r) in keys and slot[X(r)][0] < latest
+    }
+    return {**slot, **moved} if moved else slot
 
 
-def _tie_copies(out: dict[str, np.ndarray], copies: list[int | None], base: int) -> None:
+def _tie_copies(out: dict[str, np.ndarray], copies: list[dict[int, int]], base: int) -> None:
     """The stiff equalities copy_n = copy_n-1 (or = X_r at the keyframe's own frame) as
     priors without random error (``fixed``, and the upper blocks of Lambda), and a unit
-    prior on the copies no frame uses (they stay out of everything else)."""
-    c = slice(base, base + 6)
+    prior on the slots a frame leaves empty (they stay out of everything else)."""
     pose = out["measurement"][:, :6, :6]
     stiffness = COPY_STIFFNESS * max(float(np.abs(pose).max()), 1.0)
     E = stiffness * np.eye(6)
-    for n, r in enumerate(copies):
-        if r is None:
-            out["fixed"][n, c, c] += np.eye(6)
-            continue
-        before = slice(base, base + 6) if copies[n - 1] == r else slice(0, 6)
-        out["fixed"][n - 1, before, before] += E
-        out["fixed"][n, c, c] += E
-        out["measurement_upper"][n - 1, before, c] -= E
+    slots = (out["fixed"].shape[1] - base) // 6
+    for n, carried in enumerate(copies):
+        for s in range(slots):
+            c = slice(base + 6 * s, base + 6 * s + 6)
+            r = next((r for r, used in carried.items() if used == s), None)
+            if r is None:
+                out["fixed"][n, c, c] += np.eye(6)
+                continue
+            kept = copies[n - 1].get(r)
+            before = slice(0, 6) if kept is None else slice(base + 6 * kept, base + 6 * kept + 6)
+            out["fixed"][n - 1, before, before] += E
+            out["fixed"][n, c, c] += E
+            out["measurement_upper"][n - 1, before, c] -= E
 
 
 def _shared_columns(shared: Sequence[_Shared]) -> dict[tuple[int, int], int]:
