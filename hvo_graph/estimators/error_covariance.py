@@ -38,6 +38,7 @@ with frame 0 (also recursions).
 
 from __future__ import annotations
 
+from collections.abc import Iterator
 from dataclasses import dataclass
 
 import numpy as np
@@ -61,6 +62,68 @@ BIAS_NOISE_MARGIN: float = 2.0
 #: Half-width of the window the squared bias is averaged over, seconds.
 BIAS_WINDOW_SECONDS: float = 0.5
 
+#: The shared noise sources are solved for a slice at a time, each (K, n, width) array
+#: about this many bytes (at least :data:`SHARED_CHUNK_MIN` sources): with one source
+#: pair per keyframe point, all at once took 2.6 GB for a 2-minute traverse.
+SHARED_CHUNK_BYTES: int = 32 * 2**20
+SHARED_CHUNK_MIN: int = 32
+
+
+@dataclass(frozen=True)
+class SharedResponse:
+    """Y = A^T W d eta / d rho stored by frame: a keyframe's points reach only the frames
+    measured against it, so the dense (K, n, m) array is mostly zeros.
+
+    Attributes:
+        frames, size, sources: K, n and m of the dense array.
+        entries: (frame, row offset, source columns (c,), block (rows, c)) each.
+    """
+
+    frames: int
+    size: int
+    sources: int
+    entries: list[tuple[int, int, np.ndarray, np.ndarray]]
+
+    def dense(self, start: int = 0, stop: int | None = None) -> np.ndarray:
+        """(K, n, stop - start): the sources ``start:stop`` of the dense array."""
+        stop = self.sources if stop is None else stop
+        out = np.zeros((self.frames, self.size, max(stop - start, 0)))
+        for n, offset, columns, block in self.entries:
+            inside = (columns >= start) & (columns < stop)
+            if inside.any():
+                rows = out[n, offset : offset + block.shape[0]]
+                rows[:, columns[inside] - start] += block[:, inside]
+        return out
+
+    def chunks(self, width: int) -> Iterator[np.ndarray]:
+        """The dense array, ``width`` sources at a time."""
+        if not self.entries:
+            return
+        low = np.array([c.min() for _, _, c, _ in self.entries])
+        high = np.array([c.max() for _, _, c, _ in self.entries])
+        for start in range(0, self.sources, width):
+            stop = min(start + width, self.sources)
+            reach = np.flatnonzero((low < stop) & (high >= start))
+            part = SharedResponse(
+                self.frames, self.size, self.sources, [self.entries[i] for i in reach]
+            )
+            yield part.dense(start, stop)
+
+
+def _shared_chunks(shared: np.ndarray | SharedResponse) -> Iterator[np.ndarray]:
+    """(K, n, width) slices of the shared response, within :data:`SHARED_CHUNK_BYTES`."""
+    K, n = shared.shape[:2] if isinstance(shared, np.ndarray) else (shared.frames, shared.size)
+    width = max(SHARED_CHUNK_MIN, SHARED_CHUNK_BYTES // (8 * max(K * n, 1)))
+    if isinstance(shared, SharedResponse):
+        yield from shared.chunks(width)
+        return
+    for start in range(0, shared.shape[2], width):
+        yield shared[:, :, start : start + width]
+
+
+def _dense_shared(shared: np.ndarray | SharedResponse) -> np.ndarray:
+    return shared if isinstance(shared, np.ndarray) else shared.dense()
+
 
 @dataclass(frozen=True)
 class ChainSystem:
@@ -79,7 +142,8 @@ class ChainSystem:
             factors across a frame interval; in Lambda, left out of the noise: the
             few such factors are treated as if their frames' noise were separate).
         shared: (K, 12, m) A^T W d eta / d rho: how the measurement factors pull
-            each frame's state per unit of the m shared noise sources rho.
+            each frame's state per unit of the m shared noise sources rho (an array,
+            or the same stored by frame, :class:`SharedResponse`).
         gradient: (K, 12) A^T W r of the measurement factors at the estimate.
         times: (K,) frame times (seconds).
     """
@@ -89,7 +153,7 @@ class ChainSystem:
     fixed: np.ndarray
     measurement: np.ndarray
     measurement_upper: np.ndarray
-    shared: np.ndarray
+    shared: np.ndarray | SharedResponse
     gradient: np.ndarray
     times: np.ndarray
 
@@ -182,6 +246,20 @@ def _cross_noise(a: _Chain, b: _Chain, M: np.ndarray) -> tuple[np.ndarray, np.nd
     return after + before - Q, reach @ b.P + beyond
 
 
+def _outer(s: np.ndarray) -> np.ndarray:
+    """(K, n, n): s_k s_k^T of (K, n, m)."""
+    return s @ np.swapaxes(s, 1, 2)
+
+
+def _anchored(s: np.ndarray, adjoint: np.ndarray | None) -> np.ndarray:
+    """Responses (K, n, m) of the poses relative to frame 0's: s_k - Ad_k s_0 (pose rows)."""
+    if adjoint is None:
+        return s
+    out = s.copy()
+    out[:, :6] -= adjoint @ s[0, :6]
+    return out
+
+
 def _relative(N: np.ndarray, N0: np.ndarray, adjoint: np.ndarray | None) -> np.ndarray:
     """Covariance of [dY_k - Ad_k dY_0 (pose); dV_k] from Cov(d_k), Cov(d_0, d_k)."""
     if adjoint is None:
@@ -254,6 +332,7 @@ def error_covariances(
     anchor_adjoint: np.ndarray | None = None,
     bias_scale: float | None = BIAS_MODEL_SCALE,
     bias_window: float = BIAS_WINDOW_SECONDS,
+    bias_states: int | None = None,
 ) -> np.ndarray:
     """(K, n, n) covariance of each frame's error [pose tangent; twist (; twist rate)]
     (module docstring).
@@ -265,16 +344,26 @@ def error_covariances(
         bias_scale: c, how much weaker the motion model of the bias probe is; None:
             no bias term (the noise-induced covariance alone).
         bias_window: half-width (s) of the window the squared bias is averaged over.
+        bias_states: the leading entries of each frame's state the bias is measured on
+            (None: all). A keyframe copy is its keyframe's pose: next to the frame's
+            own pose it adds a direction of tiny noise (their well-measured relative
+            pose), where rounding in the probe became a bias up to 3x the twist's
+            variance.
     """
     diagonal, upper = system.information()
     chain = _chain(diagonal, upper)
     N, N0 = _noise_induced(chain, system.measurement)
-    shared_raw = _solve(chain, upper, system.shared)  # (K, 12, m)
-    shared = shared_raw
-    if anchor_adjoint is not None:
-        shared = shared_raw.copy()
-        shared[:, :6] -= anchor_adjoint @ shared[0, :6]
-    covariance = _relative(N, N0, anchor_adjoint) + shared @ np.swapaxes(shared, 1, 2)
+    covariance = _relative(N, N0, anchor_adjoint).copy()  # N itself is used below
+    if bias_scale is not None:
+        diagonal_hi, upper_hi = system.information(1.0 / bias_scale)
+        chain_hi = _chain(diagonal_hi, upper_hi)
+    shared_step_noise = np.zeros_like(covariance)  # the shared pixels' share of the probe
+    for Y in _shared_chunks(system.shared):
+        raw = _solve(chain, upper, Y)  # (K, n, width)
+        covariance += _outer(_anchored(raw, anchor_adjoint))
+        if bias_scale is not None:
+            step = _solve(chain_hi, upper_hi, Y) - raw
+            shared_step_noise += _outer(_anchored(step, anchor_adjoint))
     if anchor_adjoint is not None:
         # The anchor Y_0 is where the motion model extrapolates the first poses to: its
         # error is also the model's, the prior-induced spread P - P M P of the marginal.
@@ -290,19 +379,18 @@ def error_covariances(
     # direction the motion model's bias reaches the pose (it was 40-75 % of the
     # smoothed pose's mean squared error along the tilt-shift ambiguity of a
     # paper-like sequence, over 120 noise draws).
-    diagonal_hi, upper_hi = system.information(1.0 / bias_scale)
-    chain_hi = _chain(diagonal_hi, upper_hi)
     step = _solve(chain_hi, upper_hi, (1.0 - 1.0 / bias_scale) * system.gradient[..., None])[..., 0]
-    shared_step = _solve(chain_hi, upper_hi, system.shared) - shared_raw
     if anchor_adjoint is not None:
         step[:, :6] -= anchor_adjoint @ step[0, :6]
-        shared_step[:, :6] -= anchor_adjoint @ shared_step[0, :6]
     N_hi, N0_hi = _noise_induced(chain_hi, system.measurement)
     X, X0 = _cross_noise(chain_hi, chain, system.measurement)
     _, X0_t = _cross_noise(chain, chain_hi, system.measurement)
-    noise = _relative(
-        N_hi + N - X - np.swapaxes(X, 1, 2), N0_hi + N0 - X0 - X0_t, anchor_adjoint
-    ) + shared_step @ np.swapaxes(shared_step, 1, 2)
+    noise = (
+        _relative(N_hi + N - X - np.swapaxes(X, 1, 2), N0_hi + N0 - X0 - X0_t, anchor_adjoint)
+        + shared_step_noise
+    )
+    b = slice(0, bias_states)
+    step, noise = step[:, b], noise[:, b, b]
     square = _window_mean(np.einsum("ki,kj->kij", step, step), system.times, bias_window)
     excess = _excess(square, noise, BIAS_NOISE_MARGIN)
     if anchor_adjoint is not None:
@@ -311,7 +399,7 @@ def error_covariances(
         # twist too (a 1e-11 change of the estimate moved its twist variance 1e10-fold).
         excess[0] = 0.0
         excess[0, 6:, 6:] = _excess(square[:1, 6:, 6:], noise[:1, 6:, 6:], BIAS_NOISE_MARGIN)[0]
-    covariance += excess
+    covariance[:, b, b] += excess
     return _symmetric(covariance)
 
 
@@ -322,8 +410,10 @@ def marginal_covariances(system: ChainSystem) -> np.ndarray:
     their marginal covariance, as the tight graph's landmarks)."""
     diagonal, upper = system.information()
     chain = _chain(diagonal, upper)
-    shared = _solve(chain, upper, system.shared)
-    return _symmetric(chain.P + shared @ np.swapaxes(shared, 1, 2))
+    covariance = chain.P.copy()
+    for Y in _shared_chunks(system.shared):
+        covariance += _outer(_solve(chain, upper, Y))
+    return _symmetric(covariance)
 
 
 def dense_error_covariances(
@@ -345,7 +435,7 @@ def dense_error_covariances(
             Lam[s, t] = upper[k]
             Lam[t, s] = upper[k].T
     P = np.linalg.inv(Lam)
-    Y = system.shared.reshape(n, -1)
+    Y = _dense_shared(system.shared).reshape(n, -1)
     T = np.eye(n)
     if anchor_adjoint is not None:
         for k in range(K):

@@ -29,7 +29,7 @@ import gtsam
 import numpy as np
 from gtsam.symbol_shorthand import V, X
 
-from hvo_graph.estimators.error_covariance import ChainSystem, error_covariances
+from hvo_graph.estimators.error_covariance import ChainSystem, SharedResponse, error_covariances
 
 
 @dataclass
@@ -112,7 +112,6 @@ class FactorRecord:
             "measurement_upper": np.zeros((max(K - 1, 0), state, state)),
             "fixed": np.zeros((K, state, state)),
             "measurement": np.zeros((K, state, state)),
-            "shared": np.zeros((K, state, max(2 * len(columns), 1))),
             "gradient": np.zeros((K, state)),
         }
         for factor in self.motion:
@@ -132,16 +131,17 @@ class FactorRecord:
             jacobians[id(factor)] = (A, places)
             for n, offset, column in places:
                 out["gradient"][n, offset : offset + 6] += A[:, column : column + 6].T @ b
+        entries = []
         for item in self.shared:
             A, places = jacobians[id(item.factor)]
             response = A.T @ (item.whitening @ item.jacobian)  # (6 per key, 2N)
             c = np.array([columns[item.reference, int(i)] for i in item.ids], dtype=int)
             cols = np.ravel(np.column_stack((2 * c, 2 * c + 1)))
-            for n, offset, column in places:
-                out["shared"][n, offset : offset + 6, cols] += response[column : column + 6].T
+            entries += [(n, offset, cols, response[col : col + 6]) for n, offset, col in places]
         if state > base:
             _tie_copies(out, copies, base)
-        return ChainSystem(times=np.asarray(times, dtype=float), **out)
+        shared = SharedResponse(K, state, 2 * len(columns), entries)
+        return ChainSystem(times=np.asarray(times, dtype=float), shared=shared, **out)
 
     def covariances(
         self,
@@ -168,7 +168,8 @@ class FactorRecord:
         if keyframes is None and len(self.keyframes) == len(indices):
             keyframes = self.keyframes
         system = self.system(values, indices, times, keyframes)
-        covariance = error_covariances(system, anchor_adjoint=adjoint)
+        base = 18 if self.rates else 12
+        covariance = error_covariances(system, anchor_adjoint=adjoint, bias_states=base)
         return covariance[:, :12, :12]
 
 
