@@ -65,22 +65,7 @@ class Estimator(ABC):
             raise InputError(
                 f"pose measurement refers to frame {pose.reference}, which was not estimated before"
             )
-        R_wr, p_wr = keyframe.rotation, keyframe.position
-        R_rc, p_rc = pose.rotation, np.asarray(pose.position)
-        if pose.plane_jacobian is not None and pose.reference_rotation is not None:
-            # The front end placed the plane with its own keyframe pose; re-place it at ours.
-            import gtsam
-
-            from hvo_graph.estimators.factors import replace_keyframe_plane
-
-            moved = replace_keyframe_plane(
-                gtsam.Pose3(gtsam.Rot3(R_rc), p_rc),
-                gtsam.Pose3(gtsam.Rot3(pose.reference_rotation), pose.reference_position),
-                pose.plane_jacobian,
-                gtsam.Pose3(gtsam.Rot3(R_wr), p_wr),
-            )
-            R_rc, p_rc = moved.rotation().matrix(), np.asarray(moved.translation())
-        return PoseMeasurement(R_wr @ R_rc, R_wr @ p_rc + p_wr, pose.covariance, reference=0)
+        return keyframe_world_pose(pose, keyframe.rotation, keyframe.position)
 
     def online_trajectory(self) -> Trajectory:
         """The online estimate of every frame so far (each as it was right after its update)."""
@@ -99,3 +84,25 @@ class Estimator(ABC):
         for frame in frames:
             self.update(frame)
         return self.trajectory()
+
+
+def keyframe_world_pose(
+    pose: PoseMeasurement, R_wr: np.ndarray, p_wr: np.ndarray
+) -> PoseMeasurement:
+    """T_wc = T_wr T_rc of a keyframe-relative pose with the keyframe at (R_wr (3, 3), p_wr
+    (3,)), the plane re-placed there when the front end says how; covariance as given."""
+    R_rc, p_rc = pose.rotation, np.asarray(pose.position)
+    if pose.plane_jacobian is not None and pose.reference_rotation is not None:
+        # The front end placed the plane with its own keyframe pose; re-place it at ours.
+        import gtsam
+
+        from hvo_graph.estimators.factors import replace_keyframe_plane
+
+        moved = replace_keyframe_plane(
+            gtsam.Pose3(gtsam.Rot3(R_rc), p_rc),
+            gtsam.Pose3(gtsam.Rot3(pose.reference_rotation), pose.reference_position),
+            pose.plane_jacobian,
+            gtsam.Pose3(gtsam.Rot3(np.asarray(R_wr, dtype=float)), np.asarray(p_wr, dtype=float)),
+        )
+        R_rc, p_rc = moved.rotation().matrix(), np.asarray(moved.translation())
+    return PoseMeasurement(R_wr @ R_rc, R_wr @ p_rc + p_wr, pose.covariance, reference=0)

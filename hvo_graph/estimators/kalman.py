@@ -35,6 +35,7 @@ import numpy as np
 from hvo_graph.errors import InputError, as_covariance, as_integer, as_vector
 from hvo_graph.estimators._kalman_run import fast_run_applies, filter_frames
 from hvo_graph.estimators.base import Estimator
+from hvo_graph.estimators.kalman_keyframes import KeyframeErrors, world_pose_jacobian
 from hvo_graph.estimators.kalman_model import (
     ANGLES,
     ANGULAR_VELOCITY,
@@ -103,7 +104,10 @@ class KalmanBaseline(Estimator):
             given to the filter as it is given to the smoother. R_k is the diagonal
             of each pose's own-pixel covariance (``covariance -
             reference_covariance``) in state coordinates; the reference frame's
-            shared noise is added to the reported pose covariance.
+            shared noise is added to the reported pose covariance. Poses against
+            keyframes: the reported covariance is that of the filter's errors, the
+            keyframes' errors cloned in (:mod:`.kalman_keyframes`); the estimates
+            are the same.
         process_noise: (6,) Q_k scalars (sigma_x, sigma_y, sigma_z, sigma_p,
             sigma_w, sigma_r); default DEFAULT_PROCESS_NOISE. "auto": the
             maximum-likelihood white-noise acceleration of the sequence, fitted
@@ -161,6 +165,8 @@ class KalmanBaseline(Estimator):
             else process_noise
         )
         self._shared = np.zeros((6, 6))  # reference noise of the latest pose ("measured")
+        #: "measured": the error covariance with the keyframes' errors in it (None: = P).
+        self.keyframe_errors: KeyframeErrors | None = None
         self._shared_nonzero = False
         self._last_pose: tuple[int, int] | None = None  # (frame, reference) of the latest pose
         self._first_pose: int | None = None  # frame of the first pose met by update()
@@ -203,6 +209,8 @@ class KalmanBaseline(Estimator):
         x = F @ self.x
         _wrap_angles(x)
         self.x, self.P, self.F, self.Q = x, F @ self.P @ F.T + Q, F, Q
+        if self.keyframe_errors is not None:
+            self.keyframe_errors.predict(F, Q)
 
     def correct(self, z: np.ndarray, rows: np.ndarray, R_diag: np.ndarray) -> None:
         """Update with z = H x + noise, H = rows of I_12, R = diag(R_diag).
@@ -278,6 +286,7 @@ class KalmanBaseline(Estimator):
         t = float(frame.t)
         if not math.isfinite(t):
             raise InputError(f"frame {frame.index}: t is not finite ({frame.t})")
+        self._track_keyframe(frame)  # before predict: the state is still the keyframe's
         if self._t_prev is not None:
             self.predict(t - self._t_prev)
         self._t_prev = t
@@ -286,7 +295,13 @@ class KalmanBaseline(Estimator):
         if frame.pose is not None and self._last_pose is None:
             self._first_pose = frame.index
         frame = self._own_noise(frame)
+        against = None  # (clone slot, dg/dc) of a pose against a tracked keyframe
         if frame.pose is not None and frame.pose.reference != 0:
+            tracked = self.keyframe_errors
+            slot = None if tracked is None else tracked.find(frame.pose.reference)
+            if slot is not None:
+                assert tracked is not None
+                against = (slot, world_pose_jacobian(frame.pose, tracked.poses[slot]))
             frame = dataclasses.replace(frame, pose=self._world_pose(frame.pose))
         if self.world_frame_velocity:
             p, w, r = self.x[ANGLES]
@@ -299,7 +314,10 @@ class KalmanBaseline(Estimator):
                 measured = self.r_preset == "measured"
                 meas = _state_measurement(frame, False, None, variances=measured)
         if meas.rows.size:
-            self.correct(meas.z, meas.rows, self._r_diagonal(meas, frame.index))
+            R_diag = self._r_diagonal(meas, frame.index)
+            self.correct(meas.z, meas.rows, R_diag)
+            if self.keyframe_errors is not None:
+                self.keyframe_errors.correct(self.K, meas.rows, R_diag, against)
         _check_pitch(float(self.x[3]), f"frame {frame.index}: estimated state")
         return self.state_estimate(frame.index, t)
 
@@ -322,6 +340,28 @@ class KalmanBaseline(Estimator):
             return super().run(frames)
         finally:
             self._prepared = {}
+
+    def _track_keyframe(self, frame: FrameMeasurement) -> None:
+        """Measured R: when poses start to come against the frame just filtered, its error
+        enters the error covariance as a clone (:mod:`.kalman_keyframes`), and when they
+        move to another reference, the shared noise of the poses so far enters the
+        state's error (they all carried it)."""
+        pose = frame.pose
+        if self.r_preset != "measured" or pose is None or self._last_pose is None:
+            return
+        if pose.reference == self._last_pose[1]:
+            return
+        tracked = self.keyframe_errors
+        if tracked is None:
+            tracked = self.keyframe_errors = KeyframeErrors([], [], self.P.copy())
+        T = np.linalg.inv(state_to_tangent_jacobian(self.x)[:6, :6])
+        offset = T @ self._shared @ T.T
+        self._shared = np.zeros((6, 6))
+        latest = self._online.last()[0] if self._online else None
+        if pose.reference != 0 and pose.reference == latest:
+            tracked.add(pose.reference, self.x[:6], offset)
+        else:
+            tracked.covariance[:6, :6] += offset
 
     def _world_pose(self, pose: PoseMeasurement) -> PoseMeasurement:
         """:meth:`pose_in_world`, except for a keyframe older than the first pose (the
@@ -375,7 +415,8 @@ class KalmanBaseline(Estimator):
             J = self._J  # only its two blocks change (the rest: _J_TEMPLATE)
             J[0:3, 3:6] = _euler_rates_inverse(r, p, "euler_rate_matrix")
             J[3:6, 0:3] = R_wc.T
-        cov = J @ self.P @ J.T
+        error = self.P if self.keyframe_errors is None else self.keyframe_errors.state
+        cov = J @ error @ J.T
         if self._shared_nonzero:  # "measured" with reference covariances
             cov[:6, :6] += self._shared
         return StateEstimate(
