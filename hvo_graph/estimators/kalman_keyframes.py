@@ -32,6 +32,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from hvo_graph.estimators.base import keyframe_world_pose
 from hvo_graph.estimators.kalman_model import _euler_angles, _rotation, _wrap
 from hvo_graph.types import PoseMeasurement
 
@@ -117,8 +118,6 @@ class KeyframeErrors:
 def world_pose(pose: PoseMeasurement, keyframe: np.ndarray) -> np.ndarray:
     """(6,) g(c, T_rc): the world pose [x, y, z, p, w, r] of a keyframe-relative pose with
     the keyframe at ``keyframe`` (6,) [x, y, z, p, w, r] (the plane re-placed there)."""
-    from hvo_graph.estimators.base import keyframe_world_pose
-
     p, w, r = keyframe[3:6]
     world = keyframe_world_pose(pose, _rotation(r, p, w), keyframe[:3])
     roll, pitch, yaw = _euler_angles(np.asarray(world.rotation))
