@@ -214,3 +214,23 @@ def test_measured_kalman_reports_its_error_across_keyframes(scene, monkeypatch):
             np.testing.assert_array_equal(tracked.rotations, untracked.rotations)
             assert pose_nees(untracked, poses) > 4.0  # the keyframes taken as exact
     assert 0.5 <= np.mean(nees) <= 2.0, nees
+
+
+def test_keyframe_world_pose_jacobian_matches_numerical_differentiation():
+    """dg/dc (the world pose of a keyframe-relative pose, plane re-placed, in the filter's
+    Euler-angle coordinates, per keyframe coordinate) against central differences."""
+    from hvo_graph.estimators.kalman_keyframes import world_pose, world_pose_jacobian
+
+    obs, _ = traverse(1)
+    poses = [f.pose for f in measure(obs) if f.pose is not None and f.pose.reference]
+    assert poses and all(p.plane_jacobian is not None for p in poses)
+    rng = np.random.default_rng(2)
+    for pose in poses[:: max(len(poses) // 6, 1)]:
+        keyframe = np.r_[rng.normal(0.0, 0.5, 3), rng.normal(0.0, 0.3, 3)]
+        numerical = np.empty((6, 6))
+        for i, step in enumerate(1e-6 * np.eye(6)):
+            d = world_pose(pose, keyframe + step) - world_pose(pose, keyframe - step)
+            numerical[:, i] = d / 2e-6
+        np.testing.assert_allclose(
+            world_pose_jacobian(pose, keyframe), numerical, atol=1e-6 * np.abs(numerical).max()
+        )

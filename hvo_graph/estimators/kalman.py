@@ -35,7 +35,11 @@ import numpy as np
 from hvo_graph.errors import InputError, as_covariance, as_integer, as_vector
 from hvo_graph.estimators._kalman_run import fast_run_applies, filter_frames
 from hvo_graph.estimators.base import Estimator
-from hvo_graph.estimators.kalman_keyframes import KeyframeErrors, world_pose_jacobian
+from hvo_graph.estimators.kalman_keyframes import (
+    KeyframeErrors,
+    tangent_to_pose_state,
+    world_pose_jacobian,
+)
 from hvo_graph.estimators.kalman_model import (
     ANGLES,
     ANGULAR_VELOCITY,
@@ -354,7 +358,7 @@ class KalmanBaseline(Estimator):
         tracked = self.keyframe_errors
         if tracked is None:
             tracked = self.keyframe_errors = KeyframeErrors([], [], self.P.copy())
-        T = np.linalg.inv(state_to_tangent_jacobian(self.x)[:6, :6])
+        T = tangent_to_pose_state(self.x[:6])
         offset = T @ self._shared @ T.T
         self._shared = np.zeros((6, 6))
         latest = self._online.last()[0] if self._online else None

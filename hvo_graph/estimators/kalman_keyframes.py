@@ -30,15 +30,18 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
+import gtsam
 import numpy as np
 
 from hvo_graph.estimators.base import keyframe_world_pose
-from hvo_graph.estimators.kalman_model import _euler_angles, _rotation, _wrap
+from hvo_graph.estimators.factors import keyframe_between_residual
+from hvo_graph.estimators.kalman_model import (
+    _euler_angles,
+    _euler_rates,
+    _euler_rates_inverse,
+    _rotation,
+)
 from hvo_graph.types import PoseMeasurement
-
-#: Step of the numerical derivative dg/dc (m and rad).
-CLONE_STEP: float = 1e-6
-
 
 #: Keyframes whose errors are kept (the front end comes back to its last 15 references).
 MAX_KEYFRAMES: int = 16
@@ -125,12 +128,43 @@ def world_pose(pose: PoseMeasurement, keyframe: np.ndarray) -> np.ndarray:
 
 
 def world_pose_jacobian(pose: PoseMeasurement, keyframe: np.ndarray) -> np.ndarray:
-    """(6, 6) G = dg/dc at ``keyframe``, by central differences (angles wrapped)."""
-    G = np.empty((6, 6))
-    for i in range(6):
-        step = np.zeros(6)
-        step[i] = CLONE_STEP
-        d = world_pose(pose, keyframe + step) - world_pose(pose, keyframe - step)
-        d[3:] = _wrap(d[3:])
-        G[:, i] = d / (2.0 * CLONE_STEP)
-    return G
+    """(6, 6) G = dg/dc at ``keyframe``: in tangents, T_wc = T_wr Z(T_wr) moves by
+    Ad(Z^-1) + d(plane re-placement) per right perturbation of T_wr (the keyframe
+    factor's own Jacobian, :func:`~hvo_graph.estimators.factors.keyframe_between_residual`,
+    at a zero residual), mapped from and to the state's Euler-angle coordinates."""
+    p, w, r = keyframe[3:6]
+    R_wr = _rotation(r, p, w)
+    world = keyframe_world_pose(pose, R_wr, keyframe[:3])
+    T_wr = gtsam.Pose3(gtsam.Rot3(R_wr), np.asarray(keyframe[:3], dtype=float))
+    Z = gtsam.Pose3(gtsam.Rot3(np.asarray(pose.rotation)), np.asarray(pose.position, dtype=float))
+    if pose.plane_jacobian is not None and pose.reference_rotation is not None:
+        T_wc = gtsam.Pose3(gtsam.Rot3(np.asarray(world.rotation)), np.asarray(world.position))
+        A = gtsam.Pose3(gtsam.Rot3(pose.reference_rotation), pose.reference_position)
+        _, (d_keyframe, _) = keyframe_between_residual(
+            T_wr, T_wc, Z, A, np.asarray(pose.plane_jacobian), jacobians=True
+        )
+        tangent = -d_keyframe
+    else:
+        tangent = Z.inverse().AdjointMap()
+    return tangent_to_pose_state(world_pose(pose, keyframe)) @ tangent @ _to_tangent(keyframe)
+
+
+def tangent_to_pose_state(pose: np.ndarray) -> np.ndarray:
+    """(6, 6) d[x, y, z, p, w, r] / d[rot; trans] of a right perturbation at ``pose`` (6,)
+    [x, y, z, p, w, r]: position moves by R_wc trans, the angles by E rot (E: the Euler
+    rate matrix, :func:`~hvo_graph.estimators.kalman_model.euler_rate_matrix`)."""
+    p, w, r = (float(a) for a in pose[3:6])
+    out = np.zeros((6, 6))
+    out[0:3, 3:6] = _rotation(r, p, w)
+    out[3:6, 0:3] = _euler_rates(r, p, "keyframe pose")
+    return out
+
+
+def _to_tangent(pose: np.ndarray) -> np.ndarray:
+    """The inverse of :func:`tangent_to_pose_state` (the pose block of
+    :func:`~hvo_graph.estimators.kalman_model.state_to_tangent_jacobian`)."""
+    p, w, r = (float(a) for a in pose[3:6])
+    out = np.zeros((6, 6))
+    out[0:3, 3:6] = _euler_rates_inverse(r, p, "keyframe pose")
+    out[3:6, 0:3] = _rotation(r, p, w).T
+    return out
