@@ -279,8 +279,8 @@ def images_markdown(
         "",
         "Track error: RMS per coordinate of every observation against the projection of the "
         "plane point it was first seen at (ground truth). NEES: mean delta^T C^-1 delta of the "
-        "pose measurements (delta = Log(T_meas^-1 T_true) in the reference frame, C the front "
-        "end's covariance) against frame 0 and against keyframes; about 6 when C is honest.",
+        "pose measurements, delta = Log(T_meas^-1 T_true) in the world (keyframe poses through "
+        "the true keyframe, the plane re-placed there), C the front end's covariance; 6 if honest.",
         "",
         seed_table(results),
         "",

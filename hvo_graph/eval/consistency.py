@@ -12,6 +12,7 @@ import gtsam
 import numpy as np
 
 from hvo_graph.errors import InputError
+from hvo_graph.estimators.base import keyframe_world_pose
 from hvo_graph.eval.metrics import match_timestamps
 from hvo_graph.geometry.camera import CameraModel
 from hvo_graph.types import FrameMeasurement, FrameObservations, Plane, Trajectory
@@ -49,10 +50,13 @@ def track_error(
 def pose_nees(frames: Sequence[FrameMeasurement], truth: Trajectory) -> tuple[float | None, ...]:
     """Mean NEES of the pose measurements against frame 0 and against keyframes.
 
-    delta = Log(T_meas^-1 T_true) with T the pose in the reference frame (right
-    perturbation, the covariance's convention), NEES = delta^T C^-1 delta; 6 on average
-    when the covariance C describes the error. Frame 0 itself (exact by construction)
-    is left out.
+    delta = Log(T_meas^-1 T_true) with T the world pose (right perturbation, the
+    covariance's convention), NEES = delta^T C^-1 delta; 6 on average when the
+    covariance C describes the error. A keyframe-relative pose becomes a world pose
+    through the true keyframe pose, with the plane re-placed there as the estimators
+    do (:func:`~hvo_graph.estimators.base.keyframe_world_pose`): C holds the pixels'
+    noise, not the error of the keyframe pose the front end placed the plane with.
+    Frame 0 itself (exact by construction) is left out.
 
     Returns:
         (mean NEES against frame 0, mean NEES against keyframes); None where no frame.
@@ -64,9 +68,10 @@ def pose_nees(frames: Sequence[FrameMeasurement], truth: Trajectory) -> tuple[fl
     for f in frames:
         if f.pose is None or f.index == f.pose.reference:
             continue
-        measured = gtsam.Pose3(gtsam.Rot3(f.pose.rotation), np.asarray(f.pose.position))
-        true_relative = poses[f.pose.reference].between(poses[f.index])
-        delta = gtsam.Pose3.Logmap(measured.between(true_relative))
+        reference = poses[f.pose.reference]
+        placed = keyframe_world_pose(f.pose, reference.rotation().matrix(), reference.translation())
+        measured = gtsam.Pose3(gtsam.Rot3(placed.rotation), np.asarray(placed.position))
+        delta = gtsam.Pose3.Logmap(measured.between(poses[f.index]))
         value = float(delta @ np.linalg.solve(f.pose.covariance, delta))
         (world if f.pose.reference == 0 else keyframe).append(value)
     return tuple(float(np.mean(v)) if v else None for v in (world, keyframe))
