@@ -12,6 +12,7 @@ from hvo_graph.estimators.noise_estimation import (
     MIN_SPECTRAL_DENSITY,
     OUTLIER_GATE,
     estimate_process_noise,
+    filter_process_noise,
     jerk_log_likelihood,
     log_likelihood,
     unrolled_poses,
@@ -167,3 +168,57 @@ def test_the_lockstep_filter_equals_the_textbook_one_pair_by_pair(likelihood, or
     np.testing.assert_allclose(alone, got, rtol=1e-14)
     ungated = likelihood(t, s, C, q_w, q_v)
     assert np.all(ungated < got - 100.0)  # the outlier's density, no longer capped at the gate
+
+
+def test_a_filter_fits_below_the_bound_only_where_the_data_put_it():
+    """A rotation 100x gentler than the bound: the smoother's fit stops at the bound, the
+    filter's goes on down to the density of the motion; a density above the bound is
+    the smoother's fit unchanged (a motion without rotation: the world frame's is the
+    same)."""
+    frames = wna_sequence(1e-6, 1e-3, r=1e-8)
+    smoother = estimate_process_noise(frames, default=(1.0, 1.0)).acceleration_sigma
+    s_w, s_v = filter_process_noise(frames, default=(1.0, 1.0))
+    assert smoother[0] ** 2 == pytest.approx(MIN_SPECTRAL_DENSITY)
+    assert 1e-6 / 2.0 < s_w**2 < 1e-6 * 2.0
+    assert s_v**2 == pytest.approx(smoother[1] ** 2, rel=0.3)
+
+
+def test_a_turning_constant_body_twist_accelerates_in_the_world_frame():
+    """v = 1 m/s turning at 0.5 rad/s: in the body frame the twist is constant (the fit
+    stays at the bound); in the world frame v turns at |w x v| = 0.5 m/s^2, and the
+    filter's density holds it."""
+    dt, twist = 1 / 30, np.array([0.0, 0.0, 0.5, 1.0, 0.0, 0.0])
+    frames = [
+        FrameMeasurement(
+            k,
+            k * dt,
+            PoseMeasurement(
+                (pose := gtsam.Pose3.Expmap(twist * k * dt)).rotation().matrix(),
+                pose.translation(),
+                1e-8 * np.eye(6),
+            ),
+            None,
+        )
+        for k in range(300)
+    ]
+    body = estimate_process_noise(frames, default=(1.0, 1.0)).acceleration_sigma
+    world = estimate_process_noise(frames, default=(1.0, 1.0), translation="world")
+    assert body[1] ** 2 == pytest.approx(MIN_SPECTRAL_DENSITY)
+    assert world.acceleration_sigma[1] ** 2 > 10 * MIN_SPECTRAL_DENSITY
+    assert filter_process_noise(frames, default=(1.0, 1.0))[1] == world.acceleration_sigma[1]
+
+
+def test_unrolled_world_translation_is_the_position_with_its_covariance_rotated():
+    R = gtsam.Rot3.Yaw(np.pi / 2)
+    cov = np.diag([1.0, 2.0, 3.0, 4.0, 5.0, 6.0])
+    frames = [
+        FrameMeasurement(
+            k, k * 0.1, PoseMeasurement(R.matrix(), np.array([k, 2.0, 3.0]), cov), None
+        )
+        for k in range(3)
+    ]
+    _, s, C = unrolled_poses(frames, translation="world")
+    np.testing.assert_allclose(s[:, 3:], [[0, 2, 3], [1, 2, 3], [2, 2, 3]], atol=1e-12)
+    np.testing.assert_allclose(np.diag(C[1])[3:], [5.0, 4.0, 6.0], atol=1e-12)  # x <-> y
+    with pytest.raises(Exception, match="translation: expected 'body' or 'world'"):
+        unrolled_poses(frames, translation="camera")

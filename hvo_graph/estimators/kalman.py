@@ -68,7 +68,7 @@ from hvo_graph.estimators.kalman_model import (
     transition_matrix,
 )
 from hvo_graph.estimators.measurement_checks import checked_reference_covariance, poses_span
-from hvo_graph.estimators.noise_estimation import estimate_process_noise
+from hvo_graph.estimators.noise_estimation import filter_process_noise
 from hvo_graph.estimators.process_noise import (
     DEFAULT_ACCELERATION_SIGMA,
     DEFAULT_PROCESS_NOISE,
@@ -116,7 +116,7 @@ class KalmanBaseline(Estimator):
             sigma_w, sigma_r); default DEFAULT_PROCESS_NOISE. "auto": the
             maximum-likelihood white-noise acceleration of the sequence, fitted
             by :meth:`run` before filtering (the filter stays causal given it;
-            :func:`~hvo_graph.estimators.noise_estimation.estimate_process_noise`).
+            :func:`~hvo_graph.estimators.noise_estimation.filter_process_noise`).
         seed: seed of the random initial state (None: fresh entropy).
         random_init: draw x_0 ~ N(0, P_0), as the paper starts "from a random
             initial state"; False: x_0 = 0 (the world frame is the first camera
@@ -330,8 +330,8 @@ class KalmanBaseline(Estimator):
         final estimates are its online ones: ``online`` changes nothing)."""
         frames = list(frames)
         if self.auto_process_noise and not self._online:
-            fit = estimate_process_noise(frames, default=DEFAULT_ACCELERATION_SIGMA)
-            self.process_noise = kalman_process_noise(fit.acceleration_sigma)
+            sigma = filter_process_noise(frames, default=DEFAULT_ACCELERATION_SIGMA)
+            self.process_noise = kalman_process_noise(sigma)
         if fast_run_applies(self):  # every frame up to the first keyframe-relative pose
             frames = frames[filter_frames(self, frames) :]
             if not frames:

@@ -44,6 +44,16 @@ from hvo_graph.types import FrameMeasurement
 #: Cholesky factorization of the near-singular system fails.
 MIN_SPECTRAL_DENSITY: float = 1e-4
 
+#: The lower bound for a Kalman filter's fit where the data put a density at or near
+#: :data:`MIN_SPECTRAL_DENSITY` (:func:`filter_process_noise`): a filter has no
+#: factorization to fail. At 1e-8 a near-hover draw fitted 1e-7 and its filter's twist
+#: covariance was 15x too small; at 1e-5 the hover family's was still 1.5x too large.
+FILTER_MIN_SPECTRAL_DENSITY: float = 1e-6
+
+#: A density fitted within this factor of :data:`MIN_SPECTRAL_DENSITY` is at the bound for
+#: :func:`filter_process_noise` (5 s of hover: 1.2-1.6x).
+NEAR_BOUND: float = 2.0
+
 #: Upper bound of the search (an acceleration of ~100 m/s^2 per frame interval).
 MAX_SPECTRAL_DENSITY: float = 1e4
 
@@ -87,15 +97,23 @@ class ProcessNoiseEstimate:
 
 
 def unrolled_poses(
-    frames: Sequence[FrameMeasurement],
+    frames: Sequence[FrameMeasurement], *, translation: str = "body"
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """The measured pose sequence as times, unrolled tangent positions and noise.
 
+    Args:
+        frames: the measurements (only the poses are read).
+        translation: "body": s's translation is unrolled like its rotation (the smoother's
+            body-frame twist); "world": it is the world position p_wc (a Kalman filter's
+            world-frame velocity: a constant body twist that turns is no acceleration for
+            the first, and is one for the second).
     Returns:
         t: (K,) times of the frames with a pose measurement.
         s: (K, 6) s_k = sum_j Log(Z_{j-1}^-1 Z_j), tangent order [rot; trans].
         C: (K, 6, 6) covariance of frame k's own pixel noise.
     """
+    if translation not in ("body", "world"):
+        raise InputError(f"translation: expected 'body' or 'world', got {translation!r}")
     world: dict[int, gtsam.Pose3] = {}
     times, unrolled, covariances = [], [], []
     s = np.zeros(6)
@@ -121,6 +139,11 @@ def unrolled_poses(
             s = s + gtsam.Pose3.Logmap(previous.between(Z))
         previous = Z
         times.append(frame.t)
+        if translation == "world":
+            s[3:] = Z.translation()
+            M = np.eye(6)
+            M[3:, 3:] = Z.rotation().matrix()  # right-perturbation translation is body-frame
+            covariance = M @ covariance @ M.T
         unrolled.append(s.copy())
         covariances.append(covariance)
     if not times:
@@ -318,6 +341,8 @@ def estimate_process_noise(
     grid: int = 10,
     refinements: int = 2,
     model: str = "wna",
+    floor: float = MIN_SPECTRAL_DENSITY,
+    translation: str = "body",
 ) -> ProcessNoiseEstimate:
     """(s_w, s_v) of the motion model from the pose measurements: the maximum of the
     likelihood, then the upper end of each density's 95 % interval (:data:`INTERVAL_DROP`).
@@ -330,19 +355,63 @@ def estimate_process_noise(
         model: "wna" (:func:`log_likelihood`), "wnj" (:func:`jerk_log_likelihood`), or
             "auto": both, and the one with the larger maximised likelihood (both have
             two parameters, so the likelihoods compare directly).
+        floor: the smallest density searched (:data:`MIN_SPECTRAL_DENSITY`; a filter:
+            :data:`FILTER_MIN_SPECTRAL_DENSITY`); the first grid keeps its spacing, so a
+            lower floor adds points.
+        translation: the frame of the linear velocity's random walk (:func:`unrolled_poses`).
     Returns:
         The estimate; ``poses`` = 0 and the default when there was too little data
         (``model`` then "wnj" for "auto").
     """
-    t, s, C = unrolled_poses(_latest_poses(frames, MAX_POSES))
+    t, s, C = unrolled_poses(_latest_poses(frames, MAX_POSES), translation=translation)
     if len(t) < MIN_POSES:
         return ProcessNoiseEstimate(default, float("nan"), 0, "wnj" if model == "auto" else model)
     t, s, C = t[-MAX_POSES:], s[-MAX_POSES:], C[-MAX_POSES:]
+    decades = np.log10(MAX_SPECTRAL_DENSITY / floor) / np.log10(
+        MAX_SPECTRAL_DENSITY / MIN_SPECTRAL_DENSITY
+    )
+    grid = max(grid, int(np.ceil((grid - 1) * decades)) + 1)
     fits = [
-        _fit(t, s, C, name, grid, refinements)
+        _fit(t, s, C, name, grid, refinements, floor)
         for name in (("wna", "wnj") if model == "auto" else (model,))
     ]
     return max(fits, key=lambda fit: fit.log_likelihood)
+
+
+def filter_process_noise(
+    frames: Sequence[FrameMeasurement], *, default: tuple[float, float]
+) -> tuple[float, float]:
+    """(s_w, s_v) for a Kalman filter whose linear velocity lives in the world frame.
+
+    Each density is the larger of two fits (:func:`estimate_process_noise`): the linear
+    velocity's random walk in the body frame (the smoother's) and in the world frame
+    (the filter's: a constant body twist that turns is an acceleration for it, and a
+    body-frame fit near zero left the filter's pose covariance 2-3x too small on a
+    turning traverse). Where both end within :data:`NEAR_BOUND` times
+    :data:`MIN_SPECTRAL_DENSITY` (the fit stops at or near the bound), the search goes on
+    down to :data:`FILTER_MIN_SPECTRAL_DENSITY`.
+
+    At the bound a near-hover sequence's filter reported a twist covariance 2.7x its
+    errors' (twist NEES per dof 0.40 over 16 draws; 1.04 now). Only there: a lower bound everywhere
+    let the flat likelihood of a few noisy points (rotation absorbs slow translation)
+    pick a density 500x below the motion's, and a twist covariance 180x too confident.
+    """
+
+    def fit(floor: float) -> np.ndarray:
+        return np.maximum(
+            *(
+                estimate_process_noise(
+                    frames, default=default, floor=floor, translation=frame
+                ).acceleration_sigma
+                for frame in ("body", "world")
+            )
+        )
+
+    sigma = fit(MIN_SPECTRAL_DENSITY)
+    at_bound = sigma**2 <= NEAR_BOUND * MIN_SPECTRAL_DENSITY
+    if at_bound.any():
+        sigma = np.where(at_bound, fit(FILTER_MIN_SPECTRAL_DENSITY), sigma)
+    return float(sigma[0]), float(sigma[1])
 
 
 _LIKELIHOODS = {"wna": "log_likelihood", "wnj": "jerk_log_likelihood"}
@@ -361,10 +430,16 @@ def _latest_poses(frames: Sequence[FrameMeasurement], count: int) -> Sequence[Fr
 
 
 def _fit(
-    t: np.ndarray, s: np.ndarray, C: np.ndarray, model: str, grid: int, refinements: int
+    t: np.ndarray,
+    s: np.ndarray,
+    C: np.ndarray,
+    model: str,
+    grid: int,
+    refinements: int,
+    floor: float = MIN_SPECTRAL_DENSITY,
 ) -> ProcessNoiseEstimate:
     likelihood = globals()[_LIKELIHOODS[model]]
-    lo, hi = np.log10(MIN_SPECTRAL_DENSITY), np.log10(MAX_SPECTRAL_DENSITY)
+    lo, hi = np.log10(floor), np.log10(MAX_SPECTRAL_DENSITY)
     axis_w = axis_v = np.linspace(lo, hi, grid)
     step = axis_w[1] - axis_w[0]
     for _ in range(refinements + 1):
