@@ -438,7 +438,7 @@ def _velocities(
             out.append(VelocityMeasurement(twist_k, covariance_k, mid_k, dt_k))
             continue
         motions = [(R0[k], T0[k]), (Rw[k], Tw[k])]
-        plane = mid_interval_plane(motions, normal, distance)
+        plane = mid_interval_plane(motions, normal, distance, m_mid[k])
         out.append(
             None
             if plane is None

@@ -460,7 +460,7 @@ class MeasurementFrontEnd:
         if len(m0) < self.config.min_points or self._collinear(m0):
             return None
         motions = [(f.R, f.T) for f in (prev, frame) if f.R is not None]
-        plane = mid_interval_plane(motions, self._normal, self.plane.distance)
+        plane = mid_interval_plane(motions, self._normal, self.plane.distance, 0.5 * (m0 + m1))
         if plane is None:
             return None
         limit = self.config.outlier_chi2 if len(m0) >= ROBUST_MIN_POINTS else None

@@ -67,11 +67,16 @@ def flow_twist(
 
 
 def mid_interval_plane(
-    motions: list[tuple[np.ndarray, np.ndarray]], normal: np.ndarray, distance: float
+    motions: list[tuple[np.ndarray, np.ndarray]],
+    normal: np.ndarray,
+    distance: float,
+    points: np.ndarray | None = None,
 ) -> Plane | None:
     """The plane in the camera frame at mid-interval, from the motions (R, T) (world ->
     camera) known at the interval's ends: the mean of n(t) = R n* (renormalized) and of
-    d(t) = d* + n(t)^T T. None when no motion is known or the plane would be behind.
+    d(t) = d* + n(t)^T T. None when no motion is known, the plane would be behind, or
+    the normalized ``points`` (N, 3) seen on it are not in front of it (n^T m <= 0: a
+    pose far off, from a few noisy points, turned the plane past them).
     """
     if not motions:
         return None
@@ -79,4 +84,7 @@ def mid_interval_plane(
     distances = [distance + float(n @ T) for n, (_, T) in zip(normals, motions, strict=True)]
     n_mid = np.mean(normals, axis=0)
     d_mid = float(np.mean(distances))
-    return Plane(d_mid, n_mid / np.linalg.norm(n_mid)) if d_mid > 0 else None
+    n_mid = n_mid / np.linalg.norm(n_mid)
+    if not d_mid > 0 or (points is not None and not float(np.min(points @ n_mid)) > 0):
+        return None
+    return Plane(d_mid, n_mid)
