@@ -13,6 +13,7 @@ vectors and matrices of a shape (:func:`as_points`, :func:`as_vector`,
 from __future__ import annotations
 
 import math
+from collections.abc import Iterable
 
 import numpy as np
 
@@ -109,6 +110,14 @@ def as_number(
         limit = "" if bound is None else f" {op} {bound:g}{unit}"
         raise InputError(f"{name}: expected {what}{limit}, got {_shown(value)}")
     return x
+
+
+def as_choice(value: object, name: str, choices: Iterable[str], *, none: bool = False) -> None:
+    """Raise InputError unless ``value`` is one of ``choices`` (or None, with ``none``)."""
+    choices = tuple(choices)
+    if not ((isinstance(value, str) and value in choices) or (none and value is None)):
+        either = "None or one" if none else "one"
+        raise InputError(f"{name}: expected {either} of {', '.join(choices)}, got {value!r}")
 
 
 def as_integer(value: object, name: str, minimum: int, *, what: str = "an integer") -> int:

@@ -11,7 +11,7 @@ number for number and type for type, to those appended. The columns every report
 reads (which frames have a pose, their references, the point counts) are arrays.
 
 Records that do not have the usual form (keyframe-relative poses with their plane
-fields, missing parts of the pose's noise split, other shapes or types) are kept
+fields, a keyframe tilt, missing parts of the pose's noise split, other shapes or types) are kept
 as given.
 """
 
@@ -102,6 +102,7 @@ def _compact(frame: FrameMeasurement) -> bool:
         and _compact_pose(frame.pose)
         and _compact_velocity(frame.velocity)
         and _compact_points(frame.points)
+        and frame.keyframe_tilt is None
     )
 
 

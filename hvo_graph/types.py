@@ -146,6 +146,29 @@ class PointObservations:
 
 
 @dataclass(frozen=True)
+class TiltMeasurement:
+    """A keyframe's tilt against the plane, fitted to the frames measured against it.
+
+    Over the frames k measured against keyframe r, H_d = R + T n_r^T / d_r fixes the
+    plane normal n_r in r's camera frame once the camera has translated
+    (:mod:`hvo_graph.frontend.keyframe_tilt`): a measurement of r's attitude against
+    the plane, n_r = R_wr^T n*, that the pose measurements (6 of H_d's 8 degrees of
+    freedom) do not carry.
+
+    Attributes:
+        frame: the keyframe's index r.
+        normal: (3,) unit n_r in r's camera frame.
+        world_normal: (3,) unit n* in W, the plane the front end measures against.
+        covariance: (3, 3) covariance of ``normal`` (rank 2: orthogonal to it).
+    """
+
+    frame: int
+    normal: np.ndarray
+    world_normal: np.ndarray
+    covariance: np.ndarray
+
+
+@dataclass(frozen=True)
 class FrameMeasurement:
     """Everything the front end measured at frame ``index``.
 
@@ -159,6 +182,8 @@ class FrameMeasurement:
             the residual gate, or tracks already excluded as off the plane).
         points: the frame's kept plane points in normalized coordinates (None before
             the plane normal is known, or when not made by the front end).
+        keyframe_tilt: the tilt of the keyframe the front end left at this frame,
+            fitted to the frames measured against it, or None.
 
     ``pose`` or ``velocity`` is None when the frame had too few usable points;
     estimators then predict through the frame.
@@ -171,6 +196,7 @@ class FrameMeasurement:
     num_points: int = 0
     num_rejected: int = 0
     points: PointObservations | None = field(default=None, repr=False)
+    keyframe_tilt: TiltMeasurement | None = None
 
 
 @dataclass

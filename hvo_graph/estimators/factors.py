@@ -40,6 +40,8 @@ import numpy as np
 from gtsam.symbol_shorthand import X
 
 from hvo_graph.errors import InputError, as_number
+from hvo_graph.geometry.rotation import skew
+from hvo_graph.types import TiltMeasurement
 
 __all__ = [
     "interval_weights",
@@ -48,6 +50,8 @@ __all__ = [
     "mean_velocity_residual",
     "motion_factor",
     "motion_residual",
+    "tilt_factor",
+    "tilt_residual",
 ]
 
 
@@ -415,16 +419,61 @@ def keyframe_pose_factor(
     prior at its frozen estimate composed with the measurement (the keyframe's own
     uncertainty is not propagated).
     """
+    if reference_in_graph and plane_model is not None:
+        # Start where the front end put the frame: its keyframe placement is corrected
+        # by the keyframe's own frames (keyframe tilt); an offline run's initial chain of
+        # keyframe estimates is not, and Levenberg-Marquardt from it can stop far away.
+        factor = keyframe_between_factor(X(ref), X(k), measured, *plane_model, noise)
+        return factor, plane_model[0].compose(measured)
     measured_here = (
         measured
         if plane_model is None
         else replace_keyframe_plane(measured, *plane_model, reference_pose)
     )
     pose_guess = reference_pose.compose(measured_here)
-    if reference_in_graph and plane_model is not None:
-        factor = keyframe_between_factor(X(ref), X(k), measured, *plane_model, noise)
-    elif reference_in_graph:
+    if reference_in_graph:
         factor = gtsam.BetweenFactorPose3(X(ref), X(k), measured, noise)
     else:
         factor = gtsam.PriorFactorPose3(X(k), pose_guess, noise)
     return factor, pose_guess
+
+
+def tilt_residual(R_wr: np.ndarray, tilt: TiltMeasurement) -> tuple[np.ndarray, np.ndarray]:
+    """e = B (R_wr^T n*): the plane normal the keyframe's attitude predicts in its camera
+    frame, in the tangent basis B (2, 3) of the measured n_r (zero at the truth).
+
+    Args:
+        R_wr: (3, 3) the keyframe's rotation.
+        tilt: the measurement (n_r, n*).
+    Returns:
+        e (2,), and its (2, 6) Jacobian for a right perturbation of the keyframe's pose:
+        [B [c]_x, 0] with c = R_wr^T n* (R_wr Exp(phi) turns c by -phi).
+    """
+    basis = np.linalg.svd(np.asarray(tilt.normal, dtype=float)[None, :])[2][1:]
+    c = R_wr.T @ np.asarray(tilt.world_normal, dtype=float)
+    H = np.zeros((2, 6))
+    H[:, :3] = basis @ skew(c)
+    return basis @ c, H
+
+
+def tilt_factor(tilt: TiltMeasurement) -> gtsam.CustomFactor:
+    """The keyframe attitude a :class:`~hvo_graph.types.TiltMeasurement` measures, on X(r)
+    (:func:`tilt_residual`; noise: n_r's covariance in the basis B, B Sigma B^T).
+
+    n* is known in the first camera frame; the smoother's graph estimates that frame's
+    pose (the anchor X(k0), the reference noise's offset) and the factor takes it as W,
+    as the chain of the smoother's error covariance takes every factor's far end as
+    known: the anchor's rotation error (the first frame's pixel noise) is left out.
+    """
+    normal = np.asarray(tilt.normal, dtype=float)
+    basis = np.linalg.svd(normal[None, :])[2][1:]
+    noise = gtsam.noiseModel.Gaussian.Covariance(basis @ tilt.covariance @ basis.T)
+    key = X(int(tilt.frame))
+
+    def error(_: gtsam.CustomFactor, values: gtsam.Values, H: list | None) -> np.ndarray:
+        e, H_r = tilt_residual(values.atPose3(key).rotation().matrix(), tilt)
+        if H is not None:
+            H[0] = H_r
+        return e
+
+    return gtsam.CustomFactor(noise, [key], error)

@@ -13,9 +13,21 @@ from collections.abc import Callable, Container, Iterable, Iterator, Sequence
 import gtsam
 import numpy as np
 
-from hvo_graph.errors import InputError, as_covariance, as_integer, as_matrix, as_rotation
+from hvo_graph.errors import (
+    InputError,
+    as_covariance,
+    as_integer,
+    as_matrix,
+    as_rotation,
+    as_vector,
+)
 from hvo_graph.estimators.factors import interval_weights
-from hvo_graph.types import FrameMeasurement, PoseMeasurement, VelocityMeasurement
+from hvo_graph.types import (
+    FrameMeasurement,
+    PoseMeasurement,
+    TiltMeasurement,
+    VelocityMeasurement,
+)
 
 
 def checked_covariance(matrix: object, name: str) -> np.ndarray:
@@ -69,6 +81,29 @@ def checked_velocity(velocity: VelocityMeasurement, k: int) -> tuple[np.ndarray,
     cov = checked_covariance(velocity.covariance, f"{name}.covariance")
     _check_interval(velocity, name)
     return z, cov
+
+
+def checked_tilt(
+    tilt: TiltMeasurement | None, k: int, known: Container[int]
+) -> TiltMeasurement | None:
+    """Frame k's keyframe tilt (unit normals, a covariance positive definite across n_r,
+    an earlier frame), as float arrays, or InputError; None stays None."""
+    if tilt is None:
+        return None
+    name = f"frame {k}: keyframe_tilt"
+    r = as_integer(tilt.frame, f"{name}.frame", 0, what="a frame index")
+    if r not in known:
+        raise InputError(f"{name}.frame: {r} is not an earlier frame of this sequence")
+    normals = []
+    for field in ("normal", "world_normal"):
+        n = as_vector(getattr(tilt, field), f"{name}.{field}", 3)
+        if abs(np.linalg.norm(n) - 1.0) > 1e-6:
+            raise InputError(f"{name}.{field}: expected a unit vector, norm {np.linalg.norm(n)}")
+        normals.append(n)
+    C = as_matrix(tilt.covariance, f"{name}.covariance", (3, 3))
+    basis = np.linalg.svd(normals[0][None, :])[2][1:]
+    as_covariance(basis @ (0.5 * (C + C.T)) @ basis.T, f"{name}.covariance (across normal)", 2)
+    return TiltMeasurement(r, normals[0], normals[1], 0.5 * (C + C.T))
 
 
 def _check_interval(velocity: VelocityMeasurement, name: str) -> None:
@@ -228,6 +263,7 @@ def checked_frame(
         InputError: naming the frame and the field.
     """
     k, t = as_integer(frame.index, "frame.index", 0), float(frame.t)
+    checked_tilt(frame.keyframe_tilt, k, known)
     if not math.isfinite(t):
         raise InputError(f"frame {k}: t is not finite ({frame.t})")
     # With the split, the pose covariance's definiteness is tested with the split's

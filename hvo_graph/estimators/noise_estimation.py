@@ -125,10 +125,12 @@ def unrolled_poses(
             continue
         Z = gtsam.Pose3(gtsam.Rot3(pose.rotation), np.asarray(pose.position, dtype=float))
         if pose.reference != 0:
-            if pose.reference_rotation is not None and pose.reference_position is not None:
-                base = gtsam.Pose3(gtsam.Rot3(pose.reference_rotation), pose.reference_position)
-            elif pose.reference in world:
+            # The keyframe as its own measurement put it: the front end's placement of it
+            # may have been corrected since (keyframe tilt), a jump no motion made.
+            if pose.reference in world:
                 base = world[pose.reference]
+            elif pose.reference_rotation is not None and pose.reference_position is not None:
+                base = gtsam.Pose3(gtsam.Rot3(pose.reference_rotation), pose.reference_position)
             else:
                 continue
             Z = base.compose(Z)

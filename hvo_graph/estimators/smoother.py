@@ -24,6 +24,8 @@ and the reasons for every default):
   acceleration (default) or white-noise jerk (a third variable A(k), the twist
   rate), or the one the poses make more likely ("auto"); Q = diag(s_w^2 I_3, s_v^2 I_3) from
   ``acceleration_sigma``, by default fitted (:mod:`.noise_estimation`);
+- a keyframe's attitude against the plane, when the front end fitted it (its n_r,
+  ``FrameMeasurement.keyframe_tilt``): :func:`~.factors.tilt_factor` on X(r);
 - optional robust loss (Huber or Cauchy) on the two measurement factors.
 
 Solvers ("isam2": ``--method smoother``; "batch"; "fixed-lag"): the back ends of
@@ -40,7 +42,7 @@ import gtsam
 import numpy as np
 from gtsam.symbol_shorthand import A, V, X
 
-from hvo_graph.errors import InputError, as_integer, as_number
+from hvo_graph.errors import InputError, as_choice, as_integer, as_number
 from hvo_graph.estimators import measurement_checks
 from hvo_graph.estimators.base import Estimator
 from hvo_graph.estimators.choices import ROBUST_LOSSES, SOLVERS, VELOCITY_FACTOR_POLICIES
@@ -49,6 +51,7 @@ from hvo_graph.estimators.factors import (
     _mean_velocity_factor,
     keyframe_pose_factor,
     measurement_noise,
+    tilt_factor,
 )
 from hvo_graph.estimators.measurement_checks import CheckedFrame, Screened, poses_span
 from hvo_graph.estimators.motion_model import MotionFactors, check_motion_model, twist_keys
@@ -172,8 +175,7 @@ class FactorGraphSmoother(Estimator):
         motion_model: str = "wna",
     ) -> None:
         super().__init__()
-        if solver not in SOLVERS:
-            raise InputError(f"solver: expected one of {', '.join(SOLVERS)}, got {solver!r}")
+        as_choice(solver, "solver", SOLVERS)
         self.solver = solver
         self.name = SOLVERS[solver]
         self.lag = as_number(lag, "lag", above=0.0)
@@ -185,20 +187,13 @@ class FactorGraphSmoother(Estimator):
         #: (s_w, s_v) of the motion factors added from now on.
         self.acceleration_sigma = self.process_noise.sigma
         self.shared_reference_noise = bool(shared_reference_noise)
-        if velocity_factors not in VELOCITY_FACTOR_POLICIES:
-            raise InputError(
-                f"velocity_factors: expected one of {', '.join(VELOCITY_FACTOR_POLICIES)}, "
-                f"got {velocity_factors!r}"
-            )
+        as_choice(velocity_factors, "velocity_factors", VELOCITY_FACTOR_POLICIES)
         self.velocity_factors = velocity_factors
         #: H_c twist factors added, and left out by the "gaps" policy.
         self.velocity_factor_counts = {"used": 0, "skipped": 0}
         self._reference_cov: list[np.ndarray] = []  # of each frame's latest pose, by position
         self._last_reference: int | None = None  # of the latest frame's pose (None: none)
-        if robust is not None and robust not in ROBUST_LOSSES:
-            raise InputError(
-                f"robust: expected None or one of {', '.join(ROBUST_LOSSES)}, got {robust!r}"
-            )
+        as_choice(robust, "robust", ROBUST_LOSSES, none=True)
         self.robust = robust
         self.robust_threshold = (
             DEFAULT_ROBUST_THRESHOLD
@@ -369,6 +364,8 @@ class FactorGraphSmoother(Estimator):
         if pose_meas is not None:
             assert frame.pose is not None
             pose_guess = self._add_pose_factor(graph, k, frame.pose, pose_meas)
+        if frame.keyframe_tilt is not None and self.backend.in_graph(frame.keyframe_tilt.frame):
+            self._add(graph, tilt_factor(frame.keyframe_tilt), "measurement")
         if first:
             pose_guess = gtsam.Pose3()
         elif pose_guess is None or not use_measured:

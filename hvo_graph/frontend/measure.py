@@ -41,6 +41,7 @@ from hvo_graph.frontend._points import (
     normalized_by_id,
     shared_count,
 )
+from hvo_graph.frontend.keyframe_tilt import keep_frame, leave_keyframe
 from hvo_graph.frontend.pose_gate import gated_pose
 from hvo_graph.frontend.velocity import flow_twist, mid_interval_plane
 from hvo_graph.geometry._fit import PlaneTransfer, dlt, euclidean, known_normal_motion
@@ -56,6 +57,7 @@ from hvo_graph.types import (
     FrameObservations,
     Plane,
     PoseMeasurement,
+    TiltMeasurement,
     VelocityMeasurement,
 )
 
@@ -200,6 +202,10 @@ class MeasurementFrontEnd:
         self._collinear = CollinearMemo(COLLINEAR_SIGMAS * self._sigma)
         self._fit: PlaneTransfer | None = None  # the latest pose fit
         self.normal_fit: NormalFit | None = None
+        self._kept: list[TrackedFrame] = []  # frames against the reference (keyframe_tilt)
+        self._tilt: dict[int, np.ndarray] = {}  # n_r's covariance by reference index
+        self._previous_rotation_covariance: np.ndarray | None = None
+        self._tilt_measurement: TiltMeasurement | None = None  # for the current record
 
     @property
     def normal(self) -> np.ndarray | None:
@@ -220,6 +226,7 @@ class MeasurementFrontEnd:
         if self._reference is None:
             self._reference = TrackedFrame(obs.index, obs.t, ids, m, np.eye(3), np.zeros(3))
             self._world_index = obs.index
+            self._tilt[obs.index] = np.zeros((3, 3))
         try:
             R, T, pose = self._measure_pose(ids, m)
         except InputError:  # points geometry refuses (degenerate, behind the camera): no pose
@@ -244,9 +251,14 @@ class MeasurementFrontEnd:
             # the plane at their own estimate of it (keyframe plane Jacobian).
             self._move_reference(frame)
         self._previous = frame
+        self._previous_rotation_covariance = None if pose is None else pose.covariance[:3, :3]
+        if pose is not None:
+            keep_frame(self, frame)
         rejected = len(self._rejected_ids) + len(obs.ids) - len(ids)
         points = kept_points(ids, m, self._rejected_ids, self._sigma, self._normal, self.plane)
-        return FrameMeasurement(obs.index, obs.t, pose, velocity, len(obs.ids), rejected, points)
+        tilt, self._tilt_measurement = self._tilt_measurement, None
+        counts = (len(obs.ids), rejected)
+        return FrameMeasurement(obs.index, obs.t, pose, velocity, *counts, points, tilt)
 
     def process_all(self, observations: Iterable[FrameObservations]) -> list[FrameMeasurement]:
         """:meth:`process` of every frame in order (same-track stretches measured at once)."""
@@ -285,7 +297,7 @@ class MeasurementFrontEnd:
         m_ref, m_cur, shared = common_points(self._reference, ids, m, with_ids=True)
         earlier = self._earlier_reference(len(m_ref), ids)
         if earlier is not None or self._switch_keyframe(len(m_ref), ids, m):
-            self._move_reference(earlier or self._previous)
+            self._move_reference(earlier or leave_keyframe(self, HUBER))
             m_ref, m_cur, shared = common_points(self._reference, ids, m, with_ids=True)
         ref = self._reference
         if len(m_ref) < self.config.min_points or self._collinear(m_ref) or self._collinear(m_cur):
@@ -354,6 +366,7 @@ class MeasurementFrontEnd:
         self._earlier = [f for f in self._earlier if f.index != frame.index][-15:]
         self._earlier.append(self._reference)
         self._reference = frame
+        self._kept = []
 
     def _earlier_reference(
         self, shared_with_reference: int, ids: np.ndarray
@@ -423,11 +436,8 @@ class MeasurementFrontEnd:
             m_ref, m_cur = m_ref[inliers], m_cur[inliers]
         H = euclidean(H, m_ref, m_cur)
         if plane is None or basis is None:
-            return (
-                (np.eye(3), np.zeros(3), inliers)
-                if self._estimate_normal(H, m_ref, m_cur)
-                else None
-            )
+            found = self._estimate_normal(H, m_ref, m_cur)
+            return (np.eye(3), np.zeros(3), inliers) if found else None
         R, t = known_normal_motion(H, plane.normal, basis)
         return R, plane.distance * t, inliers
 
