@@ -288,3 +288,18 @@ def test_a_measurement_table_keeps_the_keyframe_tilt():
     assert tilted
     for k in tilted:
         assert table[k].keyframe_tilt is frames[k].keyframe_tilt
+
+
+def test_a_keyframe_kept_to_the_end_has_its_tilt_reported_once_the_camera_moved_away():
+    """Traverse draw 53 stays on its last keyframe (frame 164) for 4.5 s: never left, it
+    is reported at the first frame half a plane distance from it. No keyframe twice."""
+    scenario = draw("traverse", 53).scenario
+    frames = measure(scenario.observations, scenario)
+    reported = [f.keyframe_tilt.frame for f in frames if f.keyframe_tilt is not None]
+    last = max(f.pose.reference for f in frames if f.pose is not None)
+    assert last in reported
+    assert len(reported) == len(set(reported))
+    at = next(f for f in frames if f.keyframe_tilt is not None and f.keyframe_tilt.frame == last)
+    truth = scenario.groundtruth
+    moved = np.linalg.norm(truth.positions[at.index] - truth.positions[last])
+    assert moved > 0.4 * scenario.plane.distance

@@ -25,7 +25,7 @@ import numpy as np
 
 from hvo_graph.errors import InputError
 from hvo_graph.frontend._points import TrackedFrame, shared_count
-from hvo_graph.frontend.keyframe_tilt import keep_stretch
+from hvo_graph.frontend.keyframe_tilt import keep_stretch, with_tilt
 from hvo_graph.frontend.normal_search import sequence_normal
 from hvo_graph.frontend.velocity import flow_twist, mid_interval_plane
 from hvo_graph.geometry import _fit_batch as batch
@@ -372,7 +372,7 @@ def _measure(
     last = block[F - 1]
     front._previous = TrackedFrame(last.index, last.t, ids, m[-1], Rw[-1], Tw[-1])
     front._previous_rotation_covariance = covariance[F - 1][:3, :3]
-    keep_stretch(front, block[: F - 1], t, ids, m, Rw, Tw)
+    out[-1] = with_tilt(out[-1], keep_stretch(front, block[: F - 1], t, ids, m, Rw, Tw))
     front._rejected_ids = []
     twists = [v for v in velocities if v is not None]
     if twists:

@@ -11,6 +11,10 @@ from hvo_graph.errors import InputError
 from hvo_graph.geometry.camera import CameraModel
 from hvo_graph.types import FrameObservations, Plane, PointObservations
 
+#: Huber threshold (whitened residual norm) of the refinement the gate judges by: an
+#: off-plane track must not pull the pose towards itself and push good points out.
+HUBER = 2.0
+
 
 @dataclass(frozen=True)
 class TrackedFrame:

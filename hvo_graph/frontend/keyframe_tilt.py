@@ -16,6 +16,7 @@ chain's tilt stays; with much, the fit bounds the drift.
 
 from __future__ import annotations
 
+import dataclasses
 from collections.abc import Sequence
 from dataclasses import dataclass
 from typing import TYPE_CHECKING
@@ -24,11 +25,11 @@ import gtsam
 import numpy as np
 
 from hvo_graph.errors import InputError
-from hvo_graph.frontend._points import TrackedFrame, common_points
+from hvo_graph.frontend._points import HUBER, TrackedFrame, common_points
 from hvo_graph.geometry._fit import PlaneTransfer
 from hvo_graph.geometry.plane_normal import refine_plane_normal
 from hvo_graph.geometry.rotation import skew
-from hvo_graph.types import FrameObservations, Plane, TiltMeasurement
+from hvo_graph.types import FrameMeasurement, FrameObservations, Plane, TiltMeasurement
 
 if TYPE_CHECKING:
     from hvo_graph.frontend.measure import MeasurementFrontEnd
@@ -36,12 +37,14 @@ if TYPE_CHECKING:
 __all__ = [
     "MAX_FRAMES",
     "MAX_POINTS",
+    "KeptFrames",
     "TiltFit",
     "chained_tilt_covariance",
     "fused_tilt",
     "keep_frame",
     "keep_stretch",
     "leave_keyframe",
+    "with_tilt",
 ]
 
 #: Frames measured against a keyframe that are kept for its tilt fit (evenly thinned).
@@ -60,6 +63,10 @@ MAX_REPORTED_SIGMA: float = 0.1
 
 #: ... and when it agrees with the chain's tilt: chi^2 (2 dof) of their difference.
 REPORT_GATE: float = 13.815510557964274
+
+#: A keyframe's tilt is reported at the first frame this far from it (||T|| / d_r), or
+#: when the front end leaves it, whichever comes first.
+REPORT_PARALLAX: float = 0.5
 
 
 @dataclass(frozen=True)
@@ -87,16 +94,64 @@ class TiltFit:
         return float(np.sqrt(np.linalg.eigvalsh(self.covariance)[-1]))
 
 
+class KeptFrames(list):
+    """The frames kept for the current keyframe's tilt fit, and whether that keyframe's
+    tilt has been reported (once per keyframe: later fits reuse the same pixels)."""
+
+    reported: bool = False
+
+    def __init__(self, frames: Sequence[TrackedFrame] = ()) -> None:
+        super().__init__(frames)
+
+
 def keep_frame(front: MeasurementFrontEnd, frame: TrackedFrame) -> None:
     """Keep ``frame`` (measured against ``front``'s keyframe; not against W, whose tilt is
     known) for the tilt fit; past :data:`MAX_FRAMES`, every other older one is dropped
-    (the newest, usually of most parallax, always stays)."""
-    if front._reference is None or front._reference.index == front._world_index:
+    (the newest, usually of most parallax, always stays). The first frame
+    :data:`REPORT_PARALLAX` from the keyframe has the tilt reported (a keyframe kept
+    to the end of a sequence is never left)."""
+    ref = front._reference
+    if ref is None or ref.index == front._world_index:
         return
     frames = front._kept
     frames.append(frame)
     if len(frames) > MAX_FRAMES:
         frames[:] = frames[-2::-2][::-1] + frames[-1:]
+    if frames.reported or frame.R is None or ref.R is None or front.normal is None:
+        return
+    plane = front._plane_in(ref)
+    translation = frame.T - frame.R @ ref.R.T @ ref.T  # r -> frame
+    if np.linalg.norm(translation) >= REPORT_PARALLAX * plane.distance:
+        prior = front._tilt.get(ref.index)
+        if prior is None:
+            prior = UNKNOWN_TILT_VARIANCE * (np.eye(3) - np.outer(plane.normal, plane.normal))
+        fit = fused_tilt(
+            ref,
+            frames,
+            plane,
+            prior,
+            front._sigma,
+            min_points=front.config.min_points,
+            huber=HUBER,
+        )
+        _report(front, ref.index, fit)
+
+
+def _report(front: MeasurementFrontEnd, index: int, fit: TiltFit | None) -> None:
+    """The joint fit as the next record's ``keyframe_tilt``, when precise enough and in
+    agreement with the chain (:data:`MAX_REPORTED_SIGMA`, :data:`REPORT_GATE`)."""
+    if fit is None or front._kept.reported or front.normal is None:
+        return
+    if fit.sigma < MAX_REPORTED_SIGMA and fit.agreement < REPORT_GATE:
+        front._tilt_measurement = TiltMeasurement(
+            index, fit.normal, front.normal.copy(), fit.covariance
+        )
+        front._kept.reported = True
+
+
+def with_tilt(record: FrameMeasurement, tilt: TiltMeasurement | None) -> FrameMeasurement:
+    """``record`` carrying ``tilt`` as its ``keyframe_tilt`` (as it is for None)."""
+    return record if tilt is None else dataclasses.replace(record, keyframe_tilt=tilt)
 
 
 def keep_stretch(
@@ -107,16 +162,19 @@ def keep_stretch(
     m: np.ndarray,
     R: np.ndarray,
     T: np.ndarray,
-) -> None:
+) -> TiltMeasurement | None:
     """:func:`keep_frame` for a stretch measured at once: ``observations`` (all but its
     last frame, ``front``'s previous one by now), their times t, the stretch's track
-    ``ids``, points m (F, N, 3) and world -> frame motions R (F, 3, 3), T (F, 3)."""
+    ``ids``, points m (F, N, 3) and world -> frame motions R (F, 3, 3), T (F, 3).
+    Returns the tilt reported on the way, for the stretch's last record (or None)."""
     if front._reference is None or front._reference.index == front._world_index:
-        return
+        return None
     for k, obs in enumerate(observations):
         keep_frame(front, TrackedFrame(obs.index, t[k], ids, m[k], R[k], T[k]))
     assert front._previous is not None
     keep_frame(front, front._previous)
+    tilt, front._tilt_measurement = front._tilt_measurement, None
+    return tilt
 
 
 def chained_tilt_covariance(
@@ -234,7 +292,7 @@ def _rotation_between(a: np.ndarray, b: np.ndarray) -> np.ndarray:
     return gtsam.Rot3.Expmap(angle * axis / s).matrix()
 
 
-def leave_keyframe(front: MeasurementFrontEnd, huber: float) -> TrackedFrame:
+def leave_keyframe(front: MeasurementFrontEnd) -> TrackedFrame:
     """The previous frame, ready to become the new keyframe of ``front``.
 
     The current reference's tilt is re-fitted first (:func:`fused_tilt`; ``front``'s
@@ -260,16 +318,13 @@ def leave_keyframe(front: MeasurementFrontEnd, huber: float) -> TrackedFrame:
             prior,
             front._sigma,
             min_points=front.config.min_points,
-            huber=huber,
+            huber=HUBER,
         )
         if fused is not None:
             C, posterior = fused.correction, fused.posterior
             corrected = TrackedFrame(ref.index, ref.t, ref.ids, ref.m, C @ ref.R, C @ ref.T)
-            if fused.sigma < MAX_REPORTED_SIGMA and fused.agreement < REPORT_GATE:
-                front._tilt_measurement = TiltMeasurement(
-                    ref.index, fused.normal, normal.copy(), fused.covariance
-                )
-            prev = _remeasured(front, ref, corrected, prev, huber)
+            _report(front, ref.index, fused)
+            prev = _remeasured(front, ref, corrected, prev, HUBER)
             front._reference, ref = corrected, corrected
             front._tilt[ref.index] = posterior
     assert prev.R is not None

@@ -34,6 +34,7 @@ import numpy as np
 from hvo_graph.errors import InputError, as_integer, as_number
 from hvo_graph.frontend._batch import measure_frames
 from hvo_graph.frontend._points import (
+    HUBER,
     CollinearMemo,
     TrackedFrame,
     common_points,
@@ -41,7 +42,7 @@ from hvo_graph.frontend._points import (
     normalized_by_id,
     shared_count,
 )
-from hvo_graph.frontend.keyframe_tilt import keep_frame, leave_keyframe
+from hvo_graph.frontend.keyframe_tilt import KeptFrames, keep_frame, leave_keyframe
 from hvo_graph.frontend.pose_gate import gated_pose
 from hvo_graph.frontend.velocity import flow_twist, mid_interval_plane
 from hvo_graph.geometry._fit import PlaneTransfer, dlt, euclidean, known_normal_motion
@@ -76,10 +77,6 @@ MIN_RANSAC_PX = 0.5
 #: spare point to judge and a good point is often "rejected": on a near-hover draw
 #: dropping a corner left a near-degenerate 4-point pose with 3x its error (NEES 7).
 ROBUST_MIN_POINTS = 6
-
-#: Huber threshold (whitened residual norm) of the refinement the gate judges by: an
-#: off-plane track must not pull the pose towards itself and push good points out.
-HUBER = 2.0
 
 #: Per-point gate after the pose refinement: chi^2 (2 dof) of the transfer residual
 #: under its covariance; 13.8 is the 99.9 % quantile.
@@ -202,7 +199,7 @@ class MeasurementFrontEnd:
         self._collinear = CollinearMemo(COLLINEAR_SIGMAS * self._sigma)
         self._fit: PlaneTransfer | None = None  # the latest pose fit
         self.normal_fit: NormalFit | None = None
-        self._kept: list[TrackedFrame] = []  # frames against the reference (keyframe_tilt)
+        self._kept = KeptFrames()  # frames against the reference (keyframe_tilt)
         self._tilt: dict[int, np.ndarray] = {}  # n_r's covariance by reference index
         self._previous_rotation_covariance: np.ndarray | None = None
         self._tilt_measurement: TiltMeasurement | None = None  # for the current record
@@ -297,7 +294,7 @@ class MeasurementFrontEnd:
         m_ref, m_cur, shared = common_points(self._reference, ids, m, with_ids=True)
         earlier = self._earlier_reference(len(m_ref), ids)
         if earlier is not None or self._switch_keyframe(len(m_ref), ids, m):
-            self._move_reference(earlier or leave_keyframe(self, HUBER))
+            self._move_reference(earlier or leave_keyframe(self))
             m_ref, m_cur, shared = common_points(self._reference, ids, m, with_ids=True)
         ref = self._reference
         if len(m_ref) < self.config.min_points or self._collinear(m_ref) or self._collinear(m_cur):
@@ -366,7 +363,7 @@ class MeasurementFrontEnd:
         self._earlier = [f for f in self._earlier if f.index != frame.index][-15:]
         self._earlier.append(self._reference)
         self._reference = frame
-        self._kept = []
+        self._kept = KeptFrames()
 
     def _earlier_reference(
         self, shared_with_reference: int, ids: np.ndarray
