@@ -53,6 +53,10 @@ MAX_FRAMES: int = 24
 #: Keyframe points fitted (those seen in the most kept frames): the fit grows with P^2.
 MAX_POINTS: int = 40
 
+#: Gauss-Newton iterations of the joint fit: it starts at the placed n_r and the
+#: measured motions, within noise of the optimum.
+FIT_ITERATIONS: int = 4
+
 #: Tilt variance (rad^2) of a reference whose pose was predicted, not measured.
 UNKNOWN_TILT_VARIANCE: float = 0.1**2
 
@@ -260,6 +264,7 @@ def fused_tilt(
             plane.distance,
             sigma,
             huber=huber,
+            max_iterations=FIT_ITERATIONS,
         )
     except (InputError, np.linalg.LinAlgError):
         return None

@@ -104,6 +104,7 @@ def refine_plane_normal(
     sigma: float,
     *,
     huber: float | None = None,
+    max_iterations: int = MAX_ITERATIONS,
 ) -> NormalFit:
     """n*, every frame's motion and the reference points fitted to all observations.
 
@@ -117,6 +118,7 @@ def refine_plane_normal(
         sigma: pixel noise in normalized units.
         huber: Huber threshold on each observation's whitened residual norm (None:
             Gaussian); the reference's own observations are Gaussian.
+        max_iterations: most Gauss-Newton iterations.
     Returns:
         The :class:`NormalFit`.
     Raises:
@@ -143,7 +145,7 @@ def refine_plane_normal(
     basis, blocks, own, cost = system(n, motions, mu)
     S = np.eye(size)
     iterations = 0
-    for iterations in range(1, MAX_ITERATIONS + 1):  # noqa: B007 (reported)
+    for iterations in range(1, max_iterations + 1):  # noqa: B007 (reported)
         S, b = np.zeros((size, size)), np.zeros(size)
         S[2:, 2:] += np.eye(size - 2) / sigma**2
         b[2:] += own / sigma
