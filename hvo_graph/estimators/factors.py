@@ -40,6 +40,7 @@ import numpy as np
 from gtsam.symbol_shorthand import X
 
 from hvo_graph.errors import InputError, as_number
+from hvo_graph.geometry._fit import plane_basis
 from hvo_graph.geometry.rotation import skew
 from hvo_graph.types import TiltMeasurement
 
@@ -449,7 +450,7 @@ def tilt_residual(R_wr: np.ndarray, tilt: TiltMeasurement) -> tuple[np.ndarray, 
         e (2,), and its (2, 6) Jacobian for a right perturbation of the keyframe's pose:
         [B [c]_x, 0] with c = R_wr^T n* (R_wr Exp(phi) turns c by -phi).
     """
-    basis = np.linalg.svd(np.asarray(tilt.normal, dtype=float)[None, :])[2][1:]
+    basis = plane_basis(np.asarray(tilt.normal, dtype=float))
     c = R_wr.T @ np.asarray(tilt.world_normal, dtype=float)
     H = np.zeros((2, 6))
     H[:, :3] = basis @ skew(c)
@@ -466,7 +467,7 @@ def tilt_factor(tilt: TiltMeasurement) -> gtsam.CustomFactor:
     known: the anchor's rotation error (the first frame's pixel noise) is left out.
     """
     normal = np.asarray(tilt.normal, dtype=float)
-    basis = np.linalg.svd(normal[None, :])[2][1:]
+    basis = plane_basis(normal)
     noise = gtsam.noiseModel.Gaussian.Covariance(basis @ tilt.covariance @ basis.T)
     key = X(int(tilt.frame))
 

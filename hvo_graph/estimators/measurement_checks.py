@@ -22,6 +22,7 @@ from hvo_graph.errors import (
     as_vector,
 )
 from hvo_graph.estimators.factors import interval_weights
+from hvo_graph.geometry._fit import plane_basis
 from hvo_graph.types import (
     FrameMeasurement,
     PoseMeasurement,
@@ -101,7 +102,7 @@ def checked_tilt(
             raise InputError(f"{name}.{field}: expected a unit vector, norm {np.linalg.norm(n)}")
         normals.append(n)
     C = as_matrix(tilt.covariance, f"{name}.covariance", (3, 3))
-    basis = np.linalg.svd(normals[0][None, :])[2][1:]
+    basis = plane_basis(normals[0])
     as_covariance(basis @ (0.5 * (C + C.T)) @ basis.T, f"{name}.covariance (across normal)", 2)
     return TiltMeasurement(r, normals[0], normals[1], 0.5 * (C + C.T))
 

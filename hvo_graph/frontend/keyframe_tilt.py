@@ -26,7 +26,7 @@ import numpy as np
 
 from hvo_graph.errors import InputError
 from hvo_graph.frontend._points import HUBER, TrackedFrame, common_points
-from hvo_graph.geometry._fit import PlaneTransfer
+from hvo_graph.geometry._fit import PlaneTransfer, plane_basis
 from hvo_graph.geometry.plane_normal import refine_plane_normal
 from hvo_graph.geometry.rotation import skew
 from hvo_graph.types import FrameMeasurement, FrameObservations, Plane, TiltMeasurement
@@ -123,22 +123,32 @@ def keep_frame(front: MeasurementFrontEnd, frame: TrackedFrame) -> None:
         frames[:] = frames[-2::-2][::-1] + frames[-1:]
     if frames.reported or frame.R is None or ref.R is None or front.normal is None:
         return
-    plane = front._plane_in(ref)
     translation = frame.T - frame.R @ ref.R.T @ ref.T  # r -> frame
-    if np.linalg.norm(translation) >= REPORT_PARALLAX * plane.distance:
-        prior = front._tilt.get(ref.index)
-        if prior is None:
-            prior = UNKNOWN_TILT_VARIANCE * (np.eye(3) - np.outer(plane.normal, plane.normal))
-        fit = fused_tilt(
-            ref,
-            frames,
-            plane,
-            prior,
-            front._sigma,
-            min_points=front.config.min_points,
-            huber=HUBER,
-        )
-        _report(front, ref.index, fit)
+    if np.linalg.norm(translation) >= REPORT_PARALLAX * front._plane_in(ref).distance:
+        _report(front, ref.index, _keyframe_fit(front, ref)[1])
+
+
+def _keyframe_fit(
+    front: MeasurementFrontEnd, ref: TrackedFrame
+) -> tuple[np.ndarray, TiltFit | None]:
+    """The chain's covariance of n_r (:data:`UNKNOWN_TILT_VARIANCE` when not recorded)
+    and :func:`fused_tilt` of the frames kept against ``ref``."""
+    plane = front._plane_in(ref)
+    prior = front._tilt.get(ref.index)
+    if prior is None:
+        prior = UNKNOWN_TILT_VARIANCE * (np.eye(3) - np.outer(plane.normal, plane.normal))
+    if ref.index == front._world_index:  # n* is known there
+        return prior, None
+    fit = fused_tilt(
+        ref,
+        front._kept,
+        plane,
+        prior,
+        front._sigma,
+        min_points=front.config.min_points,
+        huber=HUBER,
+    )
+    return prior, fit
 
 
 def _report(front: MeasurementFrontEnd, index: int, fit: TiltFit | None) -> None:
@@ -269,7 +279,7 @@ def fused_tilt(
     except (InputError, np.linalg.LinAlgError):
         return None
     # Fuse in the tangent plane of n_r: the chain's prior and the fit's estimate.
-    basis = np.linalg.svd(n[None, :])[2][1:]  # (2, 3)
+    basis = plane_basis(n)  # (2, 3)
     to_basis = basis @ fit.basis.T
     fitted = to_basis @ fit.covariance @ to_basis.T
     chained = basis @ prior @ basis.T
@@ -310,28 +320,14 @@ def leave_keyframe(front: MeasurementFrontEnd) -> TrackedFrame:
     assert ref is not None and prev is not None and prev.R is not None and ref.R is not None
     normal = front.normal
     assert normal is not None
-    prior = front._tilt.get(ref.index)
-    if prior is None:
-        prior = UNKNOWN_TILT_VARIANCE * (np.eye(3) - np.outer(ref.R @ normal, ref.R @ normal))
-    posterior = prior
-    if ref.index != front._world_index:
-        plane = front._plane_in(ref)
-        fused = fused_tilt(
-            ref,
-            front._kept,
-            plane,
-            prior,
-            front._sigma,
-            min_points=front.config.min_points,
-            huber=HUBER,
-        )
-        if fused is not None:
-            C, posterior = fused.correction, fused.posterior
-            corrected = TrackedFrame(ref.index, ref.t, ref.ids, ref.m, C @ ref.R, C @ ref.T)
-            _report(front, ref.index, fused)
-            prev = _remeasured(front, ref, corrected, prev, HUBER)
-            front._reference, ref = corrected, corrected
-            front._tilt[ref.index] = posterior
+    posterior, fused = _keyframe_fit(front, ref)
+    if fused is not None:
+        C, posterior = fused.correction, fused.posterior
+        corrected = TrackedFrame(ref.index, ref.t, ref.ids, ref.m, C @ ref.R, C @ ref.T)
+        _report(front, ref.index, fused)
+        prev = _remeasured(front, ref, corrected, prev, HUBER)
+        front._reference, ref = corrected, corrected
+        front._tilt[ref.index] = posterior
     assert prev.R is not None
     front._tilt[prev.index] = chained_tilt_covariance(
         posterior, prev.R @ ref.R.T, prev.R @ normal, front._previous_rotation_covariance
