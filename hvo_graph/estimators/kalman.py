@@ -35,6 +35,13 @@ import numpy as np
 from hvo_graph.errors import InputError, as_covariance, as_integer, as_vector
 from hvo_graph.estimators._kalman_run import fast_run_applies, filter_frames
 from hvo_graph.estimators.base import Estimator
+from hvo_graph.estimators.kalman_calibration import (
+    calibrated,
+    calibration_matrix,
+    resolves_acceleration,
+    smoothed_states,
+    twist_differences,
+)
 from hvo_graph.estimators.kalman_keyframes import (
     KeyframeErrors,
     tangent_to_pose_state,
@@ -132,6 +139,11 @@ class KalmanBaseline(Estimator):
             W with the measured R_wc before the update, so the state's v is world
             velocity and x += dt v is exact to first order. The output twist is
             rotated back to the body frame.
+        calibrate_twist: with "measured" R, :meth:`run` reports a twist covariance
+            calibrated against the Rauch-Tung-Striebel smoother of the same model
+            (:mod:`.kalman_calibration`: the filter's lag under smooth motion, which P
+            leaves out); the estimates and :meth:`online_trajectory` are unchanged.
+            Ignored with the paper's presets.
     """
 
     name = "kalman"
@@ -147,8 +159,10 @@ class KalmanBaseline(Estimator):
         initial_covariance: np.ndarray | None = None,
         world_frame_velocity: bool = False,
         velocity_updates: str = "all",
+        calibrate_twist: bool = True,
     ) -> None:
         super().__init__()
+        self.calibrate_twist = bool(calibrate_twist)
         if velocity_updates not in ("all", "gaps"):
             raise InputError(
                 f"velocity_updates: expected 'all' or 'gaps', got {velocity_updates!r}"
@@ -203,6 +217,8 @@ class KalmanBaseline(Estimator):
         self._R_diag: tuple[np.ndarray | None, np.ndarray | None] = (None, None)
         self._J = _J_TEMPLATE.copy()  # state_estimate's Jacobian, filled in place
         self._prepared: dict[int, StateMeasurement] = {}  # y_k by id(frame), during run()
+        self._steps: list[tuple[float, np.ndarray, np.ndarray]] | None = None  # (t, x, P)
+        self._calibrated: Trajectory | None = None  # run()'s, with the twist calibrated
 
     # -- the textbook steps ---------------------------------------------------------
 
@@ -323,6 +339,8 @@ class KalmanBaseline(Estimator):
             if self.keyframe_errors is not None:
                 self.keyframe_errors.correct(self.K, meas.rows, R_diag, against)
         _check_pitch(float(self.x[3]), f"frame {frame.index}: estimated state")
+        if self._steps is not None:
+            self._steps.append((t, self.x.copy(), self.P.copy()))
         return self.state_estimate(frame.index, t)
 
     def run(self, frames: Iterable[FrameMeasurement], *, online: bool = True) -> Trajectory:
@@ -340,10 +358,44 @@ class KalmanBaseline(Estimator):
             # y_k of every frame converted at once; update() takes each frame's own (the
             # frame objects stay alive in ``frames``, so their ids stay theirs).
             self._prepared = _prepared_measurements(frames)
+        calibrate = self.calibrate_twist and self.r_preset == "measured" and not self._online
+        self._steps = [] if calibrate else None
         try:
-            return super().run(frames)
+            super().run(frames)
+            if calibrate:
+                self._calibrate()
+            return self.trajectory()
         finally:
             self._prepared = {}
+            self._steps = None
+
+    def trajectory(self) -> Trajectory:
+        """The filtered estimates; after :meth:`run` with "measured" R, with the twist
+        covariance calibrated (``calibrate_twist``), until the next update."""
+        online = self.online_trajectory()
+        calibrated = self._calibrated
+        if calibrated is not None and len(calibrated) == len(online):
+            return calibrated
+        return online
+
+    def _calibrate(self) -> None:
+        """:mod:`.kalman_calibration` over the frames :meth:`run` filtered."""
+        assert self._steps is not None
+        online = self.online_trajectory()
+        if not resolves_acceleration(self.process_noise):
+            return  # no acceleration found: no lag to find (module docstring)
+        if online.covariances is None or len(self._steps) != len(online):
+            return
+        times = np.array([step[0] for step in self._steps])
+        x = np.array([step[1] for step in self._steps])
+        P = np.array([step[2] for step in self._steps])
+        x_s = smoothed_states(times, x, P, self._process_covariance)
+        b = twist_differences(x, x_s, world_frame_velocity=self.world_frame_velocity)
+        S = calibration_matrix(b, online.covariances[:, 6:, 6:])
+        if S is not None:
+            self._calibrated = dataclasses.replace(
+                online, covariances=calibrated(online.covariances, S)
+            )
 
     def _track_keyframe(self, frame: FrameMeasurement) -> None:
         """Measured R: when poses start to come against the frame just filtered, its error
