@@ -3,7 +3,9 @@
 from __future__ import annotations
 
 import numpy as np
+import pytest
 
+from hvo_graph.estimators import kalman_calibration
 from hvo_graph.estimators.kalman import KalmanBaseline
 from hvo_graph.estimators.kalman_calibration import (
     CALIBRATION_FLOOR,
@@ -24,9 +26,12 @@ def _random_spd(rng: np.random.Generator, n: int) -> np.ndarray:
     return A @ A.T + n * np.eye(n)
 
 
-def test_smoothed_states_are_the_batch_least_squares_optimum():
+@pytest.mark.parametrize("block", [4096, 7])
+def test_smoothed_states_are_the_batch_least_squares_optimum(block, monkeypatch):
     """RTS means = the minimiser of the whole sequence's quadratic (prior, dynamics with
-    the same F_k and Q_k, measurements): solved here densely, as one linear system."""
+    the same F_k and Q_k, measurements): solved here densely, as one linear system (the
+    backward pass in one block and in blocks of 7 frames)."""
+    monkeypatch.setattr(kalman_calibration, "_BLOCK", block)
     rng = np.random.default_rng(3)
     K, dt = 40, 0.05
     s = np.array([0.3, 0.2, 0.1, 0.05, 0.04, 0.03])

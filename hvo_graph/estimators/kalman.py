@@ -36,6 +36,7 @@ from hvo_graph.errors import InputError, as_covariance, as_integer, as_vector
 from hvo_graph.estimators._kalman_run import fast_run_applies, filter_frames
 from hvo_graph.estimators.base import Estimator
 from hvo_graph.estimators.kalman_calibration import (
+    MIN_FRAMES,
     calibrated,
     calibration_matrix,
     resolves_acceleration,
@@ -384,7 +385,7 @@ class KalmanBaseline(Estimator):
         online = self.online_trajectory()
         if not resolves_acceleration(self.process_noise):
             return  # no acceleration found: no lag to find (module docstring)
-        if online.covariances is None or len(self._steps) != len(online):
+        if online.covariances is None or not MIN_FRAMES <= len(self._steps) == len(online):
             return
         times = np.array([step[0] for step in self._steps])
         x = np.array([step[1] for step in self._steps])

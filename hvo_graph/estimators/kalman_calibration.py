@@ -57,6 +57,9 @@ CALIBRATION_FLOOR: float = 0.3
 #: Fewest filtered frames for a calibration; fewer keep the filter's own covariance.
 MIN_FRAMES: int = 30
 
+#: Frames the smoother's backward pass holds its 12 x 12 matrices for at a time.
+_BLOCK: int = 4096
+
 
 def resolves_acceleration(process_noise: np.ndarray) -> bool:
     """Whether the filter's Q has an acceleration density above the fit's lower bound
@@ -89,22 +92,28 @@ def smoothed_states(
         (K, 12) x^s_k (the last frame's is the filter's).
     """
     K = len(times)
-    F = np.empty((K, 12, 12))  # F[k] maps frame k - 1 to frame k (F[0] unused)
-    F[0] = np.eye(12)
-    Q = np.zeros((K, 12, 12))
-    for k in range(1, K):
-        dt = float(times[k] - times[k - 1])
-        F[k] = transition_matrix(float(x[k - 1, 5]), float(x[k - 1, 3]), dt)
-        Q[k] = process_covariance(dt)
-    predicted = np.einsum("kij,kj->ki", F[1:], x[:-1])
-    P_predicted = F[1:] @ P[:-1] @ np.swapaxes(F[1:], 1, 2) + Q[1:]
-    # G_k^T = (P^-_{k+1})^-1 F_{k+1} P_k (P^- and P symmetric)
-    G = np.swapaxes(np.linalg.solve(P_predicted, F[1:] @ P[:-1]), 1, 2)
     x_s = x.copy()
-    for k in range(K - 2, -1, -1):
-        d = x_s[k + 1] - predicted[k]
-        d[ANGLES] = (d[ANGLES] + np.pi) % (2 * np.pi) - np.pi
-        x_s[k] = x[k] + G[k] @ d
+    # Backwards in blocks: F, Q, P^- and G of a block at a time (O(block) memory).
+    for start in range(max(K - 1 - _BLOCK, 0), -_BLOCK, -_BLOCK):
+        ks = np.arange(max(start, 0), min(start + _BLOCK, K - 1))  # k of G_k in this block
+        if not len(ks):
+            continue
+        F = np.array(
+            [
+                transition_matrix(float(x[k, 5]), float(x[k, 3]), float(times[k + 1] - times[k]))
+                for k in ks
+            ]
+        )
+        Q = np.array([process_covariance(float(times[k + 1] - times[k])) for k in ks])
+        predicted = np.einsum("kij,kj->ki", F, x[ks])
+        P_predicted = F @ P[ks] @ np.swapaxes(F, 1, 2) + Q
+        # G_k^T = (P^-_{k+1})^-1 F_{k+1} P_k (P^- and P symmetric)
+        G = np.swapaxes(np.linalg.solve(P_predicted, F @ P[ks]), 1, 2)
+        for i in range(len(ks) - 1, -1, -1):
+            k = ks[i]
+            d = x_s[k + 1] - predicted[i]
+            d[ANGLES] = (d[ANGLES] + np.pi) % (2 * np.pi) - np.pi
+            x_s[k] = x[k] + G[i] @ d
     return x_s
 
 
