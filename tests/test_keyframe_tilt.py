@@ -17,6 +17,7 @@ from gtsam.utils.numerical_derivative import numericalDerivative11
 
 from hvo_graph.errors import InputError
 from hvo_graph.estimators.factors import tilt_factor, tilt_residual
+from hvo_graph.estimators.measurements import RawMeasurements
 from hvo_graph.estimators.noise_estimation import unrolled_poses
 from hvo_graph.estimators.smoother import FactorGraphSmoother
 from hvo_graph.eval.consistency import trajectory_nees
@@ -149,6 +150,16 @@ def test_a_traverse_whose_keyframes_ran_away_in_tilt_keeps_them():
         errors.append(np.degrees(np.linalg.norm(gtsam.Rot3.Logmap(gtsam.Rot3(R_true.T @ R)))))
     assert max(errors) < 12.0
     assert np.percentile(errors, 90) < 5.0
+    # The raw measurements place them the same way (through their own chain of keyframe
+    # estimates they had run 100 deg away).
+    raw = RawMeasurements().run(frames)
+    for frame, R_wc in zip(frames, raw.rotations, strict=True):
+        pose = frame.pose
+        expected = gtsam.Pose3(gtsam.Rot3(pose.rotation), pose.position)
+        if pose.reference != 0:
+            keyframe = gtsam.Pose3(gtsam.Rot3(pose.reference_rotation), pose.reference_position)
+            expected = keyframe.compose(expected)
+        np.testing.assert_allclose(R_wc, expected.rotation().matrix(), atol=1e-9)
 
 
 def test_unrolled_poses_go_through_the_keyframe_as_measured():

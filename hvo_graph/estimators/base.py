@@ -86,6 +86,18 @@ class Estimator(ABC):
         return self.trajectory()
 
 
+def placed_world_pose(pose: PoseMeasurement) -> PoseMeasurement | None:
+    """T_wc = T_wr T_rc of a keyframe-relative pose through the front end's own placement of
+    its keyframe (``reference_rotation``, ``reference_position``: the pose with which it
+    placed the plane, so no re-placement); None when the pose does not carry one."""
+    R_wr, p_wr = pose.reference_rotation, pose.reference_position
+    if R_wr is None or p_wr is None:
+        return None
+    R_wr = np.asarray(R_wr, dtype=float)
+    position = R_wr @ np.asarray(pose.position, dtype=float) + np.asarray(p_wr, dtype=float)
+    return PoseMeasurement(R_wr @ pose.rotation, position, pose.covariance, reference=0)
+
+
 def keyframe_world_pose(
     pose: PoseMeasurement, R_wr: np.ndarray, p_wr: np.ndarray
 ) -> PoseMeasurement:

@@ -34,7 +34,7 @@ import numpy as np
 
 from hvo_graph.errors import InputError, as_covariance, as_integer, as_vector
 from hvo_graph.estimators._kalman_run import fast_run_applies, filter_frames
-from hvo_graph.estimators.base import Estimator
+from hvo_graph.estimators.base import Estimator, placed_world_pose
 from hvo_graph.estimators.kalman_calibration import (
     MIN_FRAMES,
     calibrated,
@@ -425,11 +425,8 @@ class KalmanBaseline(Estimator):
         first frame saw too few points): the filter's estimate of it is then its random
         initial state, the front end's (predicted from W = frame 0 on) is far closer."""
         early = self._first_pose is not None and pose.reference < self._first_pose
-        if not early or pose.reference_rotation is None or pose.reference_position is None:
-            return self.pose_in_world(pose)
-        R, p = pose.reference_rotation, pose.reference_position
-        position = R @ np.asarray(pose.position) + p
-        return PoseMeasurement(R @ pose.rotation, position, pose.covariance, reference=0)
+        placed = placed_world_pose(pose) if early else None
+        return self.pose_in_world(pose) if placed is None else placed
 
     def _own_noise(self, frame: FrameMeasurement) -> FrameMeasurement:
         """The frame as the filter uses it: with "measured" R, the pose's own-pixel

@@ -1,8 +1,10 @@
 """The raw per-frame estimates, no fusion (``--method measurements`` and ``ippe``).
 
-Pose: the frame's own pose measurement (composed with the estimate of its
-keyframe when its reference is not the world frame); a frame without one keeps
-the previous pose. Twist: the mid-interval velocity measurements straddle the
+Pose: the frame's own pose measurement, composed, when its reference is a
+keyframe, with the front end's placement of that keyframe (its own world chain,
+corrected where it fitted the keyframe's tilt; without one, with this
+estimator's estimate of the keyframe); a frame without one keeps the previous
+pose. Twist: the mid-interval velocity measurements straddle the
 frame times, so the final trajectory reports at frame k the mean of the
 twists at k-1/2 and k+1/2 (a central difference); the online estimate, which
 cannot see frame k+1, reports the one at k-1/2.
@@ -18,8 +20,8 @@ import gtsam
 import numpy as np
 
 from hvo_graph.errors import InputError
-from hvo_graph.estimators.base import Estimator
-from hvo_graph.types import FrameMeasurement, StateEstimate, Trajectory
+from hvo_graph.estimators.base import Estimator, placed_world_pose
+from hvo_graph.types import FrameMeasurement, PoseMeasurement, StateEstimate, Trajectory
 
 VELOCITY_SOURCES = ("flow", "poses")
 
@@ -61,6 +63,19 @@ class RawMeasurements(Estimator):
         return StateEstimate(
             frame.index, frame.t, pose.rotation().matrix(), pose.translation(), online_twist
         )
+
+    def pose_in_world(self, pose: PoseMeasurement) -> PoseMeasurement:
+        """T_wc = T_wr T_rc with T_wr the front end's placement of the keyframe, the one its
+        plane was placed with (``reference_rotation``, ``reference_position``).
+
+        Chaining this estimator's own keyframe estimates instead compounds every
+        keyframe's error, tilt included, with nothing to correct it: on a simulated
+        traverse with about 16 points in view that chain ran 100 degrees away where the
+        front end's stayed within 11 (smoothed / raw position on the traverse family
+        0.54 with it, 0.62 now: the raw baseline was that much worse than what the front
+        end knew)."""
+        placed = None if pose.reference == 0 else placed_world_pose(pose)
+        return super().pose_in_world(pose) if placed is None else placed
 
     def trajectory(self) -> Trajectory:
         traj = self.online_trajectory()
