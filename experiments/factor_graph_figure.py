@@ -5,8 +5,8 @@ small squares, joined by lines to the variables they constrain.
 
 - ``factor_graph``, the homography smoother: the world prior on X(0), pose
   priors from H_d against the world frame, a between factor from H_d against a
-  keyframe, the trapezoid motion factor on X(k-1), X(k), V(k-1), V(k), the twist
-  random walk, and the mid-interval twist from H_c on V(k-1), V(k);
+  keyframe, the white-noise-acceleration motion factor on X(k-1), V(k-1), X(k), V(k)
+  (GTSAM's ``WnoaMotionFactorPose3``), and the mid-interval twist from H_c on V(k-1), V(k);
 - ``factor_graph_tight``, the tightly coupled graph: the same world prior and
   motion factors, a plane prior n*^T L(j) = d* on every landmark and one
   projection factor per pixel observation, on X(k) and L(j); no H_d or H_c factor.
@@ -38,18 +38,16 @@ FACTORS = {
     "world": ("world prior on X(0) (defines W = F*)", "black"),
     "pose": ("pose from H_d, reference W (prior)", "#0072B2"),
     "between": ("pose from H_d, reference keyframe (between)", "#56B4E9"),
-    "motion": ("motion: Log(X(k-1)^-1 X(k)) = dt (V(k-1)+V(k))/2", "#D55E00"),
-    "walk": ("twist random walk: V(k) - V(k-1) ~ N(0, Q dt)", "#E69F00"),
+    "motion": ("motion: white-noise-acceleration prior on X(k-1), V(k-1), X(k), V(k)", "#D55E00"),
     "twist": ("twist from H_c at t(k-1/2): (V(k-1)+V(k))/2", "#009E73"),
 }
 
-#: The tightly coupled graph's factor kinds (the motion pair as above).
+#: The tightly coupled graph's factor kinds (the motion factor as above).
 TIGHT_FACTORS = {
     "world": FACTORS["world"],
     "plane": ("plane: n*^T L(j) = d* (landmark on the plane)", "#CC79A7"),
     "projection": ("projection: pixel of L(j) in frame k (Huber)", "#0072B2"),
     "motion": FACTORS["motion"],
-    "walk": FACTORS["walk"],
 }
 
 #: Frames each landmark of the tight drawing is seen in: tracks begin and end.
@@ -74,14 +72,13 @@ def _variable(ax: plt.Axes, centre: Point, name: str, face: str) -> None:
 def _motion_chain(
     ax: plt.Axes, poses: Sequence[Point], twists: Sequence[Point], y_twist: float, kinds: dict
 ) -> None:
-    """World prior on X(0), motion factor and twist random walk between frames, variables."""
+    """World prior on X(0), the motion factor between frames, variables."""
     xs = [p[0] for p in poses]
     _factor(ax, (xs[0] - 1.0, poses[0][1]), kinds["world"][1], [poses[0]])
     for k in range(1, len(poses)):
         mid = 0.5 * (xs[k - 1] + xs[k])
         to = [poses[k - 1], poses[k], twists[k - 1], twists[k]]
         _factor(ax, (mid, 0.5 * (poses[0][1] + y_twist)), kinds["motion"][1], to)
-        _factor(ax, (mid, y_twist - 0.55), kinds["walk"][1], [twists[k - 1], twists[k]])
     for k, (p, v) in enumerate(zip(poses, twists, strict=True)):
         _variable(ax, p, f"X({k})", "white")
         _variable(ax, v, f"V({k})", "0.93")

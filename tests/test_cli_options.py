@@ -138,9 +138,9 @@ def test_pipeline_takes_every_knob(scenario):
     run = run_estimate(scenario.observations, scenario, acceleration_sigma=0.1)
     assert run.estimator.acceleration_sigma == (0.1, 0.1)
     assert fixed.covariances is not None
-    # the same as building the smoother by hand with that noise
+    # the same as building the smoother by hand with that noise (run as the pipeline runs it)
     frames = measure(scenario.observations, scenario)
-    direct = FactorGraphSmoother(acceleration_sigma=0.1).run(frames)
+    direct = FactorGraphSmoother(acceleration_sigma=0.1).run(frames, online=False)
     np.testing.assert_allclose(run.trajectory.positions, direct.positions, atol=1e-12)
     with pytest.raises(InputError, match=r"^lag: does not apply to method 'smoother'"):
         estimate(scenario.observations, scenario, lag=2.0)

@@ -30,6 +30,8 @@ from hvo_graph.estimators.factors import (
     motion_factor,
     motion_residual,
 )
+from hvo_graph.estimators.motion_model import wna_factor
+from hvo_graph.estimators.process_noise import twist_spectral_density
 
 
 def random_case(seed: int, rotation_scale: float, relative_scale: float):
@@ -130,6 +132,53 @@ def test_motion_factor_linearization_matches_numerical_derivative(
         np.testing.assert_allclose(
             A[:, 6 * i : 6 * i + 6], R @ numerical, atol=1e-7, err_msg=f"key {i}"
         )
+
+
+def wna_values(T1, T2, v1, v2) -> gtsam.Values:
+    values = gtsam.Values()
+    for key, value in ((X(3), T1), (X(4), T2)):
+        values.insert(key, value)
+    for key, value in ((V(3), v1), (V(4), v2)):
+        values.insert(key, value)
+    return values
+
+
+@pytest.mark.parametrize(("seed", "rotation_scale", "relative_scale"), CASES)
+def test_wna_factor_is_the_gaussian_process_prior(seed, rotation_scale, relative_scale):
+    # Anderson and Barfoot's SE(3) white-noise-on-acceleration prior, written out here:
+    # e = [xi - dt v1; J_r^-1(xi) v2 - v1], Cov = Q (x) [[dt^3/3, dt^2/2], [dt^2/2, dt]].
+    T1, T2, v1, v2, dt = random_case(seed, rotation_scale, relative_scale)
+    q = twist_spectral_density((0.3, 0.7))
+    factor = wna_factor(3, 4, dt, q)
+    assert set(factor.keys()) == {X(3), X(4), V(3), V(4)}
+    J_inv = np.empty((6, 6), order="F")
+    xi = gtsam.Pose3.Logmap(T1.between(T2), J_inv)
+    expected = np.concatenate((xi - dt * v1, J_inv @ v2 - v1))
+    values = wna_values(T1, T2, v1, v2)
+    np.testing.assert_allclose(factor.unwhitenedError(values), expected, atol=1e-9)
+    Q = np.diag(q)
+    covariance = np.block([[Q * dt**3 / 3, Q * dt**2 / 2], [Q * dt**2 / 2, Q * dt]])
+    R = factor.noiseModel().R()
+    np.testing.assert_allclose(np.linalg.inv(R.T @ R), covariance, rtol=1e-9)
+
+
+def test_wna_factor_is_the_trapezoid_and_random_walk_when_nothing_turns():
+    # Without rotation J_r^-1(xi) leaves the twist as it is, and the trapezoid e1 - dt/2 e2
+    # (variance Q dt^3/12) with the random walk e2 (Q dt) is a linear transform of the same
+    # Gaussian (the Brownian bridge): the costs are equal (docs/smoother.md).
+    rng = np.random.default_rng(7)
+    dt, sigma = 0.04, (0.2, 0.5)
+    T1 = gtsam.Pose3(gtsam.Rot3.Rodrigues(0.3, -0.2, 0.5), rng.normal(size=3))
+    T2 = T1.compose(gtsam.Pose3(gtsam.Rot3(), 0.05 * rng.normal(size=3)))
+    v1 = np.concatenate((np.zeros(3), rng.normal(size=3)))
+    v2 = np.concatenate((np.zeros(3), rng.normal(size=3)))
+    q = twist_spectral_density(sigma)
+    values = wna_values(T1, T2, v1, v2)
+    bridge = gtsam.noiseModel.Diagonal.Sigmas(np.sqrt(q * dt**3 / 12))
+    walk = gtsam.noiseModel.Diagonal.Sigmas(np.sqrt(q * dt))
+    pair = motion_factor(X(3), X(4), V(3), V(4), dt, bridge).error(values)
+    pair += gtsam.BetweenFactorVector(V(3), V(4), np.zeros(6), walk).error(values)
+    np.testing.assert_allclose(wna_factor(3, 4, dt, q).error(values), pair, rtol=1e-9)
 
 
 @pytest.mark.parametrize("n", [1, 2, 3, 5])

@@ -1,6 +1,6 @@
 """Custom GTSAM factors of the hvo_graph smoother, with analytic Jacobians.
 
-Two factors are not in GTSAM and are written here (docs/smoother.md gives the
+Factors that are not in GTSAM are written here (docs/smoother.md gives the
 derivations):
 
 - the **trapezoidal motion factor** on (X_{k-1}, X_k, V_{k-1}, V_k)::
@@ -9,8 +9,10 @@ derivations):
 
   the SE(3) exponential of the interval's mean body twist, which under a
   white-noise-acceleration prior is the trapezoid of the end-point twists
-  (the Brownian-bridge mean), consistent with the mid-interval meaning of the
-  twist measured from finite-difference flow (paper/NOTES.md section 3);
+  (the Brownian-bridge mean). With the twist random walk it is, to first order,
+  the prior GTSAM's ``WnoaMotionFactorPose3`` states in C++, which the
+  estimators use (:func:`~hvo_graph.estimators.motion_model.wna_factor`); it is
+  kept for graphs that want the mean-twist relation as a factor of its own;
 - the **mean-velocity factor** on V_{i..j}::
 
       e = sum_i w_i V_i - z                                            (6,)
@@ -20,7 +22,7 @@ derivations):
   the frame nodes; for the usual interval [t_{k-1}, t_k] the weights are
   (1/2, 1/2).
 
-Both are ``gtsam.CustomFactor``: a Python callback per linearization. GTSAM
+They are ``gtsam.CustomFactor``: a Python callback per linearization. GTSAM
 passes the callback the optimizer's ``Values``; pybind11 *copies* a C++
 ``Values`` into Python unless a Python object already wraps that very
 instance, so a solver must hold a Python reference to its linearization point

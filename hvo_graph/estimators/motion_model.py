@@ -1,9 +1,9 @@
 """The smoother's motion models, one place that builds their factors between two frames.
 
-- ``"wna"``, white-noise acceleration: per frame X(k), V(k); the trapezoidal
-  motion factor (:func:`~hvo_graph.estimators.factors.motion_factor`, Brownian
-  bridge Q dt^3 / 12) and the twist random walk V(k-1) -> V(k) (Q dt). Q is the
-  spectral density of the acceleration.
+- ``"wna"``, white-noise acceleration: per frame X(k), V(k); GTSAM's
+  ``WnoaMotionFactorPose3`` between consecutive frames (:func:`wna_factor`, the
+  Gaussian-process prior of Anderson and Barfoot in C++). Q is the spectral
+  density of the acceleration.
 - ``"wnj"``, white-noise jerk (constant acceleration): per frame X(k), V(k) and
   A(k), the twist rate; the pose factor and the linear twist-rate factor of
   :mod:`hvo_graph.estimators.jerk`. Q is the spectral density of the jerk.
@@ -21,16 +21,38 @@ from gtsam.symbol_shorthand import A, V, X
 
 from hvo_graph.errors import InputError
 from hvo_graph.estimators.choices import MOTION_MODEL_CHOICES
-from hvo_graph.estimators.factors import _motion_factor
 from hvo_graph.estimators.jerk import JerkNoise, jerk_motion_factor, twist_rate_factor
-from hvo_graph.estimators.process_noise import MotionNoise
+from hvo_graph.estimators.process_noise import twist_spectral_density
 
-__all__ = ["MOTION_MODELS", "MotionFactors", "check_motion_model", "twist_keys"]
+__all__ = ["MOTION_MODELS", "MotionFactors", "check_motion_model", "twist_keys", "wna_factor"]
 
 #: The smoother's motion models ("auto": chosen per sequence by the likelihood).
 MOTION_MODELS: tuple[str, ...] = ("wna", "wnj")
 
-_ZERO6 = np.zeros(6)
+
+def wna_factor(previous: int, k: int, dt: float, q: np.ndarray) -> gtsam.NonlinearFactor:
+    """The white-noise-acceleration prior between frames ``previous`` and ``k``, dt apart.
+
+    GTSAM's ``WnoaMotionFactorPose3`` on X(previous), V(previous), X(k), V(k), with
+    xi = Log(X(previous)^-1 X(k)):
+
+        e = [xi - dt V(previous);  J_r^-1(xi) V(k) - V(previous)]          (12,)
+        Cov(e) = [[Q dt^3/3, Q dt^2/2], [Q dt^2/2, Q dt]]
+
+    (J_r^-1 the inverse right Jacobian of SE(3): V(k) carried into the interval's start,
+    I to first order). To first order it is the trapezoid Log(X(previous)^-1 X(k)) = dt
+    (V(previous) + V(k)) / 2 with variance Q dt^3 / 12 and the random walk V(k) -
+    V(previous) ~ N(0, Q dt), a linear transform of (e1, e2) (docs/smoother.md); a C++
+    factor, linearized without a Python callback.
+
+    Args:
+        previous, k: frame indices (keys X(.), V(.)).
+        dt: t_k - t_previous > 0, seconds (not checked: the callers' frames are in order).
+        q: (6,) diag(Q) [rot x3; trans x3] (:func:`~.process_noise.twist_spectral_density`).
+    """
+    return gtsam.WnoaMotionFactorPose3(
+        gtsam.StateData(X(previous), V(previous), 0.0), gtsam.StateData(X(k), V(k), dt), q
+    )
 
 
 def check_motion_model(value: object) -> str:
@@ -50,7 +72,7 @@ class MotionFactors:
     """The motion factors between frames, noise models cached per (model, sigma, dt)."""
 
     def __init__(self) -> None:
-        self._noise: dict[tuple[str, tuple[float, float]], MotionNoise | JerkNoise] = {}
+        self._noise: dict[tuple[str, tuple[float, float]], np.ndarray | JerkNoise] = {}
 
     def __call__(
         self, model: str, previous: int, k: int, dt: float, sigma: tuple[float, float]
@@ -60,15 +82,10 @@ class MotionFactors:
         if noise is None:
             if len(self._noise) > 16:
                 self._noise.clear()
-            noise = MotionNoise(sigma) if model == "wna" else JerkNoise(sigma)
+            noise = twist_spectral_density(sigma) if model == "wna" else JerkNoise(sigma)
             self._noise[(model, sigma)] = noise
         if model == "wna":
-            motion_noise, walk_noise = noise(dt)  # type: ignore[misc]
-            return [
-                # dt > 0 (frames in time order) and the noise is 6-D: built unchecked.
-                _motion_factor((X(previous), X(k), V(previous), V(k)), dt, motion_noise),
-                gtsam.BetweenFactorVector(V(previous), V(k), _ZERO6, walk_noise),
-            ]
+            return [wna_factor(previous, k, dt, noise)]  # type: ignore[arg-type]
         keys = (X(previous), X(k), V(previous), V(k), A(previous), A(k))
         return [
             jerk_motion_factor(keys, dt, noise(dt)),  # type: ignore[arg-type]

@@ -6,10 +6,9 @@ step dt (filterpy's ``Q_discrete_white_noise`` with the continuous model)::
     Cov[position] = q dt^3 / 3,   Cov[position, velocity] = q dt^2 / 2,   Cov[velocity] = q dt
 
 The Kalman filter's Q_k (:func:`~hvo_graph.estimators.kalman.process_covariance`)
-is these three blocks per (position, velocity) pair. The factor graph uses the
-velocity block for the twist random walk V(k-1) -> V(k), and, for the
-trapezoidal motion factor, the position error given the velocities at *both*
-ends (a Brownian bridge): q dt^3 / 12.
+is these three blocks per (position, velocity) pair; the factor graph's motion
+factor (GTSAM's ``WnoaMotionFactorPose3``, :func:`~hvo_graph.estimators.motion_model.wna_factor`)
+has the same covariance per (pose, twist) pair.
 
 Both estimators take their defaults from here: q = a_max^2 dt (Bar-Shalom's
 rule) with a_max = 0.3 m/s^2 (rad/s^2), just above the paper scenario's
@@ -22,7 +21,6 @@ from __future__ import annotations
 import math
 from collections.abc import Sequence
 
-import gtsam
 import numpy as np
 
 from hvo_graph.errors import InputError
@@ -87,34 +85,3 @@ def white_noise_blocks(q: np.ndarray, dt: float) -> tuple[np.ndarray, np.ndarray
 def velocity_variance(q: np.ndarray, dt: float) -> np.ndarray:
     """Variance of the velocity's random walk over dt: q dt."""
     return q * dt
-
-
-def bridge_variance(q: np.ndarray, dt: float) -> np.ndarray:
-    """Variance of the trapezoidal position step given both end velocities: q dt^3 / 12."""
-    return q * dt**3 / 12.0
-
-
-class MotionNoise:
-    """The smoother's motion-factor noise models over an interval dt, cached per dt.
-
-    Args:
-        sigma: (s_w, s_v) of :func:`acceleration_sigma`.
-    """
-
-    def __init__(self, sigma: tuple[float, float]) -> None:
-        #: diag(Q): white-noise-acceleration spectral densities, [rot x3; trans x3].
-        self.q = twist_spectral_density(sigma)
-        self._cache: dict[float, tuple[gtsam.noiseModel.Base, gtsam.noiseModel.Base]] = {}
-
-    def __call__(self, dt: float) -> tuple[gtsam.noiseModel.Base, gtsam.noiseModel.Base]:
-        """(motion, random walk) noise over dt: Q dt^3 / 12 (Brownian bridge) and Q dt."""
-        cached = self._cache.get(dt)
-        if cached is None:
-            if len(self._cache) > 64:  # irregular frame times: keep the cache small
-                self._cache.clear()
-            cached = (
-                gtsam.noiseModel.Diagonal.Sigmas(np.sqrt(bridge_variance(self.q, dt))),
-                gtsam.noiseModel.Diagonal.Sigmas(np.sqrt(velocity_variance(self.q, dt))),
-            )
-            self._cache[dt] = cached
-        return cached

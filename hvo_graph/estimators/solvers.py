@@ -60,8 +60,8 @@ def isam2_params(
 ) -> gtsam.ISAM2Params:
     """ISAM2's parameters: only the poses relinearize, checked in the touched cliques."""
     params = gtsam.ISAM2Params()
-    # Only the poses need relinearizing: every factor is affine in the twists V with
-    # constant Jacobians (motion: -dt/2 I; measured and random-walk twists: linear).
+    # Only the poses need relinearizing: every factor is affine in the twists V, its
+    # Jacobians set by the poses alone (motion prior: I and J_r^-1(xi); measured twists: linear).
     thresholds = gtsam.ISAM2ThresholdMap()
     thresholds.insert(("x", np.full(6, relinearize_threshold)))
     thresholds.insert(("v", np.full(6, np.inf)))

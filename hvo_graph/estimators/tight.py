@@ -28,8 +28,8 @@ track comes back after its landmark left the online problem). Factors:
 - first frame: that similarity of the plane (shift along it, turn about n*, scale) held
   at the first frame's back-projection, its uncertainty added to the covariances
   (:mod:`~hvo_graph.estimators.plane_gauge`: else the motion model shrinks the map);
-- motion and twist random walk: the same factors and process noise as the homography
-  graph (:func:`~hvo_graph.estimators.factors.motion_factor`, Q fitted by maximum
+- motion: the same white-noise-acceleration prior and process noise as the homography
+  graph (:func:`~hvo_graph.estimators.motion_model.wna_factor`, Q fitted by maximum
   likelihood on the front end's H_d poses unless ``acceleration_sigma`` is given);
 - no H_d or H_c factors: they are made of the same pixels. They give the initial
   values: X(k) from H_d (the motion-model prediction without one), V(k) from H_c,
@@ -63,11 +63,14 @@ from hvo_graph.errors import InputError, as_integer, as_number
 from hvo_graph.estimators import plane_gauge
 from hvo_graph.estimators.base import Estimator
 from hvo_graph.estimators.choices import TIGHT_SOLVERS
-from hvo_graph.estimators.factors import _motion_factor
 from hvo_graph.estimators.landmarks import DEFAULT_MAX_LANDMARKS, back_project, farthest_points
+from hvo_graph.estimators.motion_model import wna_factor
 from hvo_graph.estimators.noise_estimation import ProcessNoiseSchedule
 from hvo_graph.estimators.plane_tracks import DEFAULT_TRACK_CHI2, off_plane_keys
-from hvo_graph.estimators.process_noise import DEFAULT_ACCELERATION_SIGMA, MotionNoise
+from hvo_graph.estimators.process_noise import (
+    DEFAULT_ACCELERATION_SIGMA,
+    twist_spectral_density,
+)
 from hvo_graph.estimators.process_noise import acceleration_sigma as check_acceleration_sigma
 from hvo_graph.estimators.solvers import Backend, BatchBackend
 from hvo_graph.estimators.tight_covariance import backend_error_covariances
@@ -243,7 +246,7 @@ class TightSmoother(Estimator):
     def _set_acceleration_sigma(self, value: float | Sequence[float]) -> None:
         #: (s_w, s_v) of the motion factors added from now on.
         self.acceleration_sigma = check_acceleration_sigma(value)
-        self._motion_noise = MotionNoise(self.acceleration_sigma)
+        self._q = twist_spectral_density(self.acceleration_sigma)
 
     def run(self, frames: Iterable[FrameMeasurement], *, online: bool = True) -> Trajectory:
         """Fuse a whole sequence; "auto" process noise is fitted on all of it first (the
@@ -286,11 +289,8 @@ class TightSmoother(Estimator):
             pose_guess = gtsam.Pose3()
         else:
             previous, dt = self._indices[-1], t - self._times[-1]
-            motion_noise, walk_noise = self._motion_noise(dt)
-            # dt > 0 (checked above) and a 6-D noise: built unchecked.
-            graph.add(_motion_factor((X(previous), X(k), V(previous), V(k)), dt, motion_noise))
-            graph.add(gtsam.BetweenFactorVector(V(previous), V(k), _ZERO6, walk_noise))
-            store.add_motion(dt, self.acceleration_sigma)  # both, as numbers
+            graph.add(wna_factor(previous, k, dt, self._q))  # dt > 0: checked above
+            store.add_motion(dt, self.acceleration_sigma)  # as numbers
             if frame.pose is not None:
                 world = self.pose_in_world(frame.pose)
                 pose_guess = gtsam.Pose3(gtsam.Rot3(world.rotation), world.position)

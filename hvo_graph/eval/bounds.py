@@ -7,8 +7,9 @@ graph linearized at the ground truth (the same factors as
 - **posterior** (Bayesian, Van Trees) bound: every pixel observation of every
   frame (isotropic noise of the scene's pixel sigma, in normalized coordinates),
   the plane n*^T L = d* on the true points, X(0) = I, and the white-noise-
-  acceleration motion prior (motion and twist random-walk factors with the given
-  (s_w, s_v)) over the whole sequence. Its inverse's pose blocks bound the
+  acceleration motion prior (the smoothers' motion factors,
+  :func:`~hvo_graph.estimators.motion_model.wna_factor`, with the given (s_w, s_v))
+  over the whole sequence. Its inverse's pose blocks bound the
   error covariance of any estimator that knows this prior;
 - **memoryless** bound: the pose of frame k from the pixels of frame 0 and frame k
   alone (plane, X(0) = I, no motion model): what a per-frame estimator (H_d, IPPE)
@@ -30,9 +31,9 @@ import numpy as np
 from gtsam.symbol_shorthand import L, V, X
 
 from hvo_graph.errors import InputError, as_number
-from hvo_graph.estimators.factors import motion_factor
-from hvo_graph.estimators.process_noise import MotionNoise
+from hvo_graph.estimators.motion_model import wna_factor
 from hvo_graph.estimators.process_noise import acceleration_sigma as check_acceleration_sigma
+from hvo_graph.estimators.process_noise import twist_spectral_density
 from hvo_graph.estimators.tight import DEFAULT_PLANE_SIGMA, IN_PLANE_SIGMA
 from hvo_graph.sim.scenario import Scenario
 
@@ -163,20 +164,17 @@ def posterior_bound(scenario: Scenario, acceleration_sigma: float | Sequence[flo
     graph = gtsam.NonlinearFactorGraph()
     values = gtsam.Values()
     _frame_factors(scenario, list(range(K)), graph, values)
-    noise = MotionNoise(sigma)
+    q = twist_spectral_density(sigma)
     values.insert(V(0), truth.twists[0])
     graph.add(gtsam.PriorFactorVector(V(0), np.zeros(6), gtsam.noiseModel.Isotropic.Sigma(6, 10.0)))
     for k in range(1, K):
         values.insert(V(k), truth.twists[k])
         dt = float(truth.t[k] - truth.t[k - 1])
-        motion, walk = noise(dt)
-        graph.add(motion_factor(X(k - 1), X(k), V(k - 1), V(k), dt, motion))
-        graph.add(gtsam.BetweenFactorVector(V(k - 1), V(k), np.zeros(6), walk))
+        graph.add(wna_factor(k - 1, k, dt, q))
     # One elimination; the marginals of each pose from its Bayes tree (QR: stiff priors).
     params = gtsam.ISAM2Params()
     params.setFactorization("QR")
     isam = gtsam.ISAM2(params)
-    held = isam.getLinearizationPoint()  # noqa: F841 -- custom factors are handed this wrapper
     isam.update(graph, values)
     return _bound(scenario, [isam.marginalCovariance(X(k)) for k in range(K)])
 
