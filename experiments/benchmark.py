@@ -604,11 +604,11 @@ The default smoother's final trajectory is the batch optimum of every factor of 
 sequence, so it keeps them all; what it keeps per frame decides its memory on long runs \
 (`tracemalloc` for Python's share, VmRSS / VmHWM for GTSAM's C++):
 
-- **factors as numbers**: the motion pair (motion and twist random walk) and the H_d pose \
-factor of each frame are 56 floats in growing numpy arrays \
+- **factors as numbers**: the motion factor and the H_d pose factor of each frame are \
+56 floats in growing numpy arrays \
 (`hvo_graph.estimators.factor_store.FactorStore`), rebuilt as GTSAM factors when solved. \
-As GTSAM objects they took ~3.4 kB per frame (a Python closure per motion factor, a noise \
-model per measurement). Other factors (the anchor, keyframe between factors, H_c twist \
+As GTSAM objects they take ~2.2 kB per frame (each with its own noise model: the motion \
+factor's 12 x 12, the pose's 6 x 6). Other factors (the anchor, keyframe between factors, H_c twist \
 factors where poses leave a gap) are kept as they are: few on most sequences;
 - **online estimates as numbers**: 19 floats per frame \
 (`hvo_graph.estimators.state_log.StateLog`) instead of a `StateEstimate` with three \
@@ -1029,8 +1029,10 @@ def reference_sections(args: argparse.Namespace) -> list[tuple[str, str]]:
                 "at once. The fixed-lag "
                 "smoother pays GTSAM's `IncrementalFixedLagSmoother.update` (relinearization, "
                 "re-elimination of the window, marginalization of the frames leaving it) with "
-                "twice the variables of the bare chain and Python motion factors that GTSAM "
-                "calls back at every relinearization.",
+                "twice the variables of the bare chain (a pose and a twist per frame, joined "
+                "by GTSAM's 12-dimensional motion factor), and in Python each frame's input "
+                "checks (`update` checks one frame alone; `run` checks blocks of frames at "
+                "once), factors and estimate.",
             ]
         )
         sections.append(("Each stage beside its reference", text))

@@ -1,14 +1,13 @@
 """The default smoother's whole graph in compact arrays, and its final solve in chunks.
 
 The final trajectory of the default smoother is the batch optimum of every
-factor of the sequence. Kept as GTSAM objects, those factors cost ~3.4 kB per
-frame (a Python ``CustomFactor`` closure per motion factor, a noise model per
-measurement), and one Levenberg-Marquardt solve of the whole graph held
-another ~9 kB per frame at its peak (linearized system, elimination tree,
-iterates): 1.1 GiB at 100,000 frames. Here
+factor of the sequence. Kept as GTSAM objects, those factors cost ~2.2 kB per
+frame (each with its own noise model), and one Levenberg-Marquardt solve of the
+whole graph held another ~9 kB per frame at its peak (linearized system,
+elimination tree, iterates): over 1 GiB at 100,000 frames. Here
 
-- the two factors of every frame that depend only on numbers (the motion pair
-  X(k-1), X(k), V(k-1), V(k) with its dt and (s_w, s_v); an H_d pose against
+- the two factors of every frame that depend only on numbers (the motion factor
+  on X(k-1), V(k-1), X(k), V(k) with its dt and (s_w, s_v); an H_d pose against
   the world, with its pose and 6x6 covariance) are rows of growing numpy
   arrays, 56 floats per frame, rebuilt as GTSAM factors when solved; any other
   factor (anchor and first-frame priors, keyframe between factors, H_c twist
@@ -38,7 +37,7 @@ from gtsam.symbol_shorthand import A, V, X
 
 from hvo_graph.estimators.chunked_lm import chunked_levenberg_marquardt
 from hvo_graph.estimators.least_squares import levenberg_marquardt
-from hvo_graph.estimators.motion_model import MOTION_MODELS, MotionFactors
+from hvo_graph.estimators.motion_model import STORED_FORMS, MotionFactors
 
 __all__ = [
     "CHUNK_FRAMES",
@@ -147,7 +146,7 @@ class FactorStore:
         if not self.keeps:
             return
         self.rates = self.rates or model == "wnj"
-        self._motion.append([len(self) - 1, dt, *sigma, MOTION_MODELS.index(model)])
+        self._motion.append([len(self) - 1, dt, *sigma, STORED_FORMS.index(model)])
 
     def add_pose_prior(self, pose: gtsam.Pose3, covariance: np.ndarray) -> None:
         """An H_d pose factor against the world on the newest frame."""
@@ -255,7 +254,7 @@ class FactorStore:
         pairs = zip(indices[places - 1].tolist(), indices[places].tolist(), strict=True)
         for (previous, k), (_, dt, s_w, s_v, model) in zip(pairs, motion.tolist(), strict=True):
             for factor in self._motion_factors(
-                MOTION_MODELS[int(model)], previous, k, dt, (s_w, s_v)
+                STORED_FORMS[int(model)], previous, k, dt, (s_w, s_v)
             ):
                 graph.add(factor)
         if len(places):

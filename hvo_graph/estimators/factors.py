@@ -10,9 +10,9 @@ derivations):
   the SE(3) exponential of the interval's mean body twist, which under a
   white-noise-acceleration prior is the trapezoid of the end-point twists
   (the Brownian-bridge mean). With the twist random walk it is, to first order,
-  the prior GTSAM's ``WnoaMotionFactorPose3`` states in C++, which the
-  estimators use (:func:`~hvo_graph.estimators.motion_model.wna_factor`); it is
-  kept for graphs that want the mean-twist relation as a factor of its own;
+  the prior GTSAM's ``WnoaMotionFactorPose3`` states in C++, which the homography
+  smoother uses (:func:`~hvo_graph.estimators.motion_model.wna_factor`); the
+  tightly coupled graph uses this pair (``"wna-pair"`` of ``MotionFactors``);
 - the **mean-velocity factor** on V_{i..j}::
 
       e = sum_i w_i V_i - z                                            (6,)

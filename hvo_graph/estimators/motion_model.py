@@ -2,8 +2,9 @@
 
 - ``"wna"``, white-noise acceleration: per frame X(k), V(k); GTSAM's
   ``WnoaMotionFactorPose3`` between consecutive frames (:func:`wna_factor`, the
-  Gaussian-process prior of Anderson and Barfoot in C++). Q is the spectral
-  density of the acceleration.
+  Gaussian-process prior of Anderson and Barfoot in C++); ``"wna-pair"``, the same
+  prior as the trapezoid and the twist random walk (the tightly coupled graph's
+  form). Q is the spectral density of the acceleration.
 - ``"wnj"``, white-noise jerk (constant acceleration): per frame X(k), V(k) and
   A(k), the twist rate; the pose factor and the linear twist-rate factor of
   :mod:`hvo_graph.estimators.jerk`. Q is the spectral density of the jerk.
@@ -21,13 +22,27 @@ from gtsam.symbol_shorthand import A, V, X
 
 from hvo_graph.errors import InputError
 from hvo_graph.estimators.choices import MOTION_MODEL_CHOICES
+from hvo_graph.estimators.factors import _motion_factor
 from hvo_graph.estimators.jerk import JerkNoise, jerk_motion_factor, twist_rate_factor
-from hvo_graph.estimators.process_noise import twist_spectral_density
+from hvo_graph.estimators.process_noise import twist_spectral_density, velocity_variance
 
-__all__ = ["MOTION_MODELS", "MotionFactors", "check_motion_model", "twist_keys", "wna_factor"]
+__all__ = [
+    "MOTION_MODELS",
+    "STORED_FORMS",
+    "MotionFactors",
+    "check_motion_model",
+    "twist_keys",
+    "wna_factor",
+]
 
 #: The smoother's motion models ("auto": chosen per sequence by the likelihood).
 MOTION_MODELS: tuple[str, ...] = ("wna", "wnj")
+
+#: The forms :class:`MotionFactors` builds: the models, then "wna-pair", the WNA prior as
+#: the trapezoid and the twist random walk (the tightly coupled graph's form).
+STORED_FORMS: tuple[str, ...] = (*MOTION_MODELS, "wna-pair")
+
+_ZERO6 = np.zeros(6)
 
 
 def wna_factor(previous: int, k: int, dt: float, q: np.ndarray) -> gtsam.NonlinearFactor:
@@ -73,21 +88,42 @@ class MotionFactors:
 
     def __init__(self) -> None:
         self._noise: dict[tuple[str, tuple[float, float]], np.ndarray | JerkNoise] = {}
+        self._pair: dict[tuple[tuple[float, float], float], tuple] = {}
 
     def __call__(
         self, model: str, previous: int, k: int, dt: float, sigma: tuple[float, float]
     ) -> list[gtsam.NonlinearFactor]:
-        """The factors of ``model`` between frames ``previous`` and ``k``, dt apart."""
+        """The factors of ``model`` (one of :data:`STORED_FORMS`) between frames ``previous``
+        and ``k``, dt apart."""
         noise = self._noise.get((model, sigma))
         if noise is None:
             if len(self._noise) > 16:
                 self._noise.clear()
-            noise = twist_spectral_density(sigma) if model == "wna" else JerkNoise(sigma)
+            noise = JerkNoise(sigma) if model == "wnj" else twist_spectral_density(sigma)
             self._noise[(model, sigma)] = noise
         if model == "wna":
             return [wna_factor(previous, k, dt, noise)]  # type: ignore[arg-type]
+        if model == "wna-pair":
+            bridge, walk = self._pair_noise(noise, sigma, dt)  # type: ignore[arg-type]
+            return [
+                # dt > 0 (frames in time order) and the noise is 6-D: built unchecked.
+                _motion_factor((X(previous), X(k), V(previous), V(k)), dt, bridge),
+                gtsam.BetweenFactorVector(V(previous), V(k), _ZERO6, walk),
+            ]
         keys = (X(previous), X(k), V(previous), V(k), A(previous), A(k))
         return [
             jerk_motion_factor(keys, dt, noise(dt)),  # type: ignore[arg-type]
             twist_rate_factor((V(previous), A(previous), V(k), A(k)), dt, noise.q),
         ]
+
+    def _pair_noise(self, q: np.ndarray, sigma: tuple[float, float], dt: float) -> tuple:
+        """The trapezoid's Q dt^3 / 12 (Brownian bridge) and the random walk's Q dt."""
+        cached = self._pair.get((sigma, dt))
+        if cached is None:
+            if len(self._pair) > 64:  # irregular frame times: keep the cache small
+                self._pair.clear()
+            cached = self._pair[(sigma, dt)] = (
+                gtsam.noiseModel.Diagonal.Sigmas(np.sqrt(q * dt**3 / 12.0)),
+                gtsam.noiseModel.Diagonal.Sigmas(np.sqrt(velocity_variance(q, dt))),
+            )
+        return cached

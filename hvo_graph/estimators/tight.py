@@ -28,9 +28,9 @@ track comes back after its landmark left the online problem). Factors:
 - first frame: that similarity of the plane (shift along it, turn about n*, scale) held
   at the first frame's back-projection, its uncertainty added to the covariances
   (:mod:`~hvo_graph.estimators.plane_gauge`: else the motion model shrinks the map);
-- motion: the same white-noise-acceleration prior and process noise as the homography
-  graph (:func:`~hvo_graph.estimators.motion_model.wna_factor`, Q fitted by maximum
-  likelihood on the front end's H_d poses unless ``acceleration_sigma`` is given);
+- motion: the white-noise-acceleration prior as trapezoid and twist random walk (with
+  GTSAM's factor the window's early wild twists pulled the poses off on a noisy
+  few-point draw), Q fitted on the front end's H_d poses unless ``acceleration_sigma``;
 - no H_d or H_c factors: they are made of the same pixels. They give the initial
   values: X(k) from H_d (the motion-model prediction without one), V(k) from H_c,
   and a new landmark from its first ray cut with the plane at that initial pose.
@@ -64,13 +64,10 @@ from hvo_graph.estimators import plane_gauge
 from hvo_graph.estimators.base import Estimator
 from hvo_graph.estimators.choices import TIGHT_SOLVERS
 from hvo_graph.estimators.landmarks import DEFAULT_MAX_LANDMARKS, back_project, farthest_points
-from hvo_graph.estimators.motion_model import wna_factor
+from hvo_graph.estimators.motion_model import MotionFactors
 from hvo_graph.estimators.noise_estimation import ProcessNoiseSchedule
 from hvo_graph.estimators.plane_tracks import DEFAULT_TRACK_CHI2, off_plane_keys
-from hvo_graph.estimators.process_noise import (
-    DEFAULT_ACCELERATION_SIGMA,
-    twist_spectral_density,
-)
+from hvo_graph.estimators.process_noise import DEFAULT_ACCELERATION_SIGMA
 from hvo_graph.estimators.process_noise import acceleration_sigma as check_acceleration_sigma
 from hvo_graph.estimators.solvers import Backend, BatchBackend
 from hvo_graph.estimators.tight_covariance import backend_error_covariances
@@ -116,6 +113,8 @@ DEFAULT_WORLD_SIGMA: float = 1e-6
 DEFAULT_INITIAL_TWIST_SIGMA: float = 10.0
 
 _ZERO6 = np.zeros(6)
+
+_MOTION_FORM = "wna-pair"  # the motion prior's form (motion_model.STORED_FORMS)
 _UNIT_CALIBRATION = gtsam.Cal3_S2(1.0, 1.0, 0.0, 0.0, 0.0)
 
 
@@ -179,6 +178,7 @@ class TightSmoother(Estimator):
         self.name = TIGHT_SOLVERS[solver]
         self.lag = as_number(lag, "lag", above=0.0)
         self.process_noise = ProcessNoiseSchedule(acceleration_sigma, DEFAULT_ACCELERATION_SIGMA)
+        self._motion = MotionFactors()
         self._set_acceleration_sigma(self.process_noise.sigma)
         self.robust_threshold = (
             DEFAULT_PIXEL_THRESHOLD
@@ -246,7 +246,6 @@ class TightSmoother(Estimator):
     def _set_acceleration_sigma(self, value: float | Sequence[float]) -> None:
         #: (s_w, s_v) of the motion factors added from now on.
         self.acceleration_sigma = check_acceleration_sigma(value)
-        self._q = twist_spectral_density(self.acceleration_sigma)
 
     def run(self, frames: Iterable[FrameMeasurement], *, online: bool = True) -> Trajectory:
         """Fuse a whole sequence; "auto" process noise is fitted on all of it first (the
@@ -289,8 +288,9 @@ class TightSmoother(Estimator):
             pose_guess = gtsam.Pose3()
         else:
             previous, dt = self._indices[-1], t - self._times[-1]
-            graph.add(wna_factor(previous, k, dt, self._q))  # dt > 0: checked above
-            store.add_motion(dt, self.acceleration_sigma)  # as numbers
+            for factor in self._motion(_MOTION_FORM, previous, k, dt, self.acceleration_sigma):
+                graph.add(factor)
+            store.add_motion(dt, self.acceleration_sigma, _MOTION_FORM)  # as numbers
             if frame.pose is not None:
                 world = self.pose_in_world(frame.pose)
                 pose_guess = gtsam.Pose3(gtsam.Rot3(world.rotation), world.position)
