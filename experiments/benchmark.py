@@ -608,8 +608,8 @@ sequence, so it keeps them all; what it keeps per frame decides its memory on lo
 56 floats in growing numpy arrays \
 (`hvo_graph.estimators.factor_store.FactorStore`), rebuilt as GTSAM factors when solved. \
 As GTSAM objects they take ~2.2 kB per frame (each with its own noise model: the motion \
-factor's 12 x 12, the pose's 6 x 6). Other factors (the anchor, keyframe between factors, H_c twist \
-factors where poses leave a gap) are kept as they are: few on most sequences;
+factor's 12 x 12, the pose's 6 x 6). Other factors (the anchor, keyframe between factors, \
+H_c twist factors where poses leave a gap) are kept as they are: few on most sequences;
 - **online estimates as numbers**: 19 floats per frame \
 (`hvo_graph.estimators.state_log.StateLog`) instead of a `StateEstimate` with three \
 arrays (~0.7 kB per frame); no per-frame dict entries;
