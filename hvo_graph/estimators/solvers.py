@@ -60,9 +60,8 @@ def isam2_params(
 ) -> gtsam.ISAM2Params:
     """ISAM2's parameters: only the poses relinearize, checked in the touched cliques."""
     params = gtsam.ISAM2Params()
-    # Only the poses trigger relinearizing: every factor is affine in the twists V for given
-    # poses (measured twists: linear). The motion prior's pose Jacobian also moves with V(k),
-    # through J_r^-1(xi) V(k), but that term is second order in the per-frame step xi.
+    # Only the poses trigger relinearizing: every factor is affine in V for given poses (the
+    # motion prior's pose Jacobian moves with V only through J_r^-1(xi) V(k): second order).
     thresholds = gtsam.ISAM2ThresholdMap()
     thresholds.insert(("x", np.full(6, relinearize_threshold)))
     thresholds.insert(("v", np.full(6, np.inf)))
