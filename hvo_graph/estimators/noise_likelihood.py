@@ -109,8 +109,8 @@ def _kalman_log_likelihood(
     step = X.strides
     # Flat views of the rows of X (i, j) -> i (n + 1) + j: P's upper and lower triangles.
     flat = X.reshape(n * (n + 1), m)
-    above, below = np.triu_indices(n, 1)
-    upper, lower = above * (n + 1) + below, below * (n + 1) + above
+    rows, cols = np.triu_indices(n, 1)  # (i, j) with i < j
+    upper, lower = rows * (n + 1) + cols, cols * (n + 1) + rows
     # The diagonals of P's (order x order) 6x6 blocks, where Q_k goes: (order, order, 6, M).
     diagonals = np.lib.stride_tricks.as_strided(
         X,
