@@ -336,7 +336,7 @@ def solve_in_chunks(
     """
     total = len(store)
     indices = store.indices()
-    whole = (store, values, indices, 0, total, max_iterations)
+    whole = (store, values, indices, 0, total, max_iterations, tolerance)
     if total <= chunk:
         return [_solve_range(*whole, landmarks=True)]
     if store.landmarks:
@@ -374,7 +374,9 @@ def _sweeps(
     largest moves appended to ``moves``; whether they settled."""
 
     def sweep(ranges: list[tuple[int, int]]) -> float:
-        return max(_solve_range(store, values, indices, *r, max_iterations) for r in ranges)
+        return max(
+            _solve_range(store, values, indices, *r, max_iterations, tolerance) for r in ranges
+        )
 
     count = 1
     moves.append(sweep(chunks))
@@ -398,11 +400,13 @@ def _solve_range(
     first: int,
     stop: int,
     max_iterations: int,
+    tolerance: float,
     *,
     landmarks: bool = False,
 ) -> float:
     """Solve the frames at positions [first, stop) with every other frame held (and the
-    landmarks, unless ``landmarks``: then they are solved too, with their own factors);
+    landmarks, unless ``landmarks``: then they are solved too, with their own factors),
+    to within ``tolerance`` of their optimum (:func:`levenberg_marquardt`'s step test);
     update ``values``; return the largest move (any tangent coordinate)."""
     graph, touched = store.graph(first, stop)
     observed = store.observed(touched.start, touched.stop)
@@ -416,7 +420,9 @@ def _solve_range(
     held = [symbol(k) for k in outside.tolist() for symbol in symbols]
     if not landmarks:
         held.extend(observed.tolist())
-    solved, _ = levenberg_marquardt(graph, chunk_values, max_iterations=max_iterations, fixed=held)
+    solved, _ = levenberg_marquardt(
+        graph, chunk_values, max_iterations=max_iterations, fixed=held, step_tolerance=tolerance
+    )
     own = [symbol(k) for k in indices[first:stop].tolist() for symbol in symbols]
     if landmarks:
         own.extend(observed.tolist())
