@@ -8,6 +8,7 @@ import gtsam
 import numpy as np
 import pytest
 
+from hvo_graph.estimators import noise_estimation
 from hvo_graph.estimators.noise_estimation import (
     MIN_SPECTRAL_DENSITY,
     OUTLIER_GATE,
@@ -222,3 +223,22 @@ def test_unrolled_world_translation_is_the_position_with_its_covariance_rotated(
     np.testing.assert_allclose(np.diag(C[1])[3:], [5.0, 4.0, 6.0], atol=1e-12)  # x <-> y
     with pytest.raises(Exception, match="translation: expected 'body' or 'world'"):
         unrolled_poses(frames, translation="camera")
+
+
+@pytest.mark.parametrize(("n", "r"), [(12, 1e-2), (20, 1e-3), (600, 1e-6)])
+def test_the_interval_search_ends_where_a_scan_of_the_whole_axis_ends(n, r, monkeypatch):
+    frames = wna_sequence(1e-2, 1e-3, r=r, n=n)
+    passes: list[int] = []
+    evaluate = noise_estimation._evaluate
+
+    def counted(*args):
+        passes.append(len(args[4]))
+        return evaluate(*args)
+
+    monkeypatch.setattr(noise_estimation, "_evaluate", counted)
+    staged = estimate_process_noise(frames, default=(1.0, 1.0))
+    # Few poses: a flat likelihood, searched past the first decade; 600: within it.
+    assert len(passes) == (5 if n < 100 else 4)
+    monkeypatch.setattr(noise_estimation, "INTERVAL_FIRST_STEPS", 10**6)
+    whole = estimate_process_noise(frames, default=(1.0, 1.0))
+    assert staged.acceleration_sigma == whole.acceleration_sigma
