@@ -18,6 +18,7 @@ from hvo_graph.estimators.noise_estimation import (
     log_likelihood,
     unrolled_poses,
 )
+from hvo_graph.measurement_table import MeasurementTable
 from hvo_graph.types import FrameMeasurement, PoseMeasurement
 
 
@@ -242,3 +243,16 @@ def test_the_interval_search_ends_where_a_scan_of_the_whole_axis_ends(n, r, monk
     monkeypatch.setattr(noise_estimation, "INTERVAL_FIRST_STEPS", 10**6)
     whole = estimate_process_noise(frames, default=(1.0, 1.0))
     assert staged.acceleration_sigma == whole.acceleration_sigma
+
+
+def test_a_table_and_its_records_fit_on_the_same_latest_poses(monkeypatch):
+    frames = wna_sequence(1e-2, 1e-3, r=1e-6, n=60)
+    # Every third frame without a pose: the tail is counted in poses, not frames.
+    frames = [
+        f if k % 3 else FrameMeasurement(f.index, f.t, None, None) for k, f in enumerate(frames)
+    ]
+    monkeypatch.setattr(noise_estimation, "MAX_POSES", 25)
+    from_records = estimate_process_noise(frames, default=(1.0, 1.0))
+    from_table = estimate_process_noise(MeasurementTable(frames), default=(1.0, 1.0))
+    assert from_records.poses == from_table.poses == 25
+    assert from_records.acceleration_sigma == from_table.acceleration_sigma

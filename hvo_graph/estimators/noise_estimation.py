@@ -245,6 +245,10 @@ _LIKELIHOODS = {"wna": log_likelihood, "wnj": jerk_log_likelihood}
 def _latest_poses(frames: Sequence[FrameMeasurement], count: int) -> Sequence[FrameMeasurement]:
     """The tail of ``frames`` holding the latest ``count`` poses and the pose before them
     (the likelihood reads only those; unrolling the whole sequence grows with it)."""
+    has_pose = getattr(frames, "has_pose", None)  # a MeasurementTable's column: no records
+    if has_pose is not None:
+        posed = np.flatnonzero(has_pose)
+        return frames[int(posed[-count - 1]) :] if len(posed) > count else frames
     seen = 0
     for start in range(len(frames) - 1, -1, -1):
         if frames[start].pose is not None:
