@@ -1020,7 +1020,7 @@ def reference_sections(args: argparse.Namespace) -> list[tuple[str, str]]:
                 "the same tracks with one numpy call per step over all of them (DLT, "
                 "Gauss-Newton steps, gate, pose noise, H_c solve), so LAPACK's small SVDs "
                 "and solves and, with 6 points or more, OpenCV's RANSAC (one call per "
-                "frame whose points are not all one consensus set) set its speed; the bare "
+                "frame the left-out fits do not decide) set its speed; the bare "
                 "loop measures one frame at a time and pays "
                 "the interpreter's cost per numpy call. The Kalman filter's per-frame work is a "
                 "dozen 12 x 12 products and one solve, the same as the plain loop's (Joseph "

@@ -29,7 +29,7 @@ from hvo_graph.frontend.keyframe_tilt import keep_stretch, with_tilt
 from hvo_graph.frontend.normal_search import sequence_normal
 from hvo_graph.frontend.velocity import flow_twist, mid_interval_plane
 from hvo_graph.geometry import _fit_batch as batch
-from hvo_graph.geometry._consensus import all_inliers
+from hvo_graph.geometry._consensus import consensus_inliers
 from hvo_graph.geometry._fit import plane_basis
 from hvo_graph.geometry.discrete import DEGENERACY_TOL, _ransac_inliers
 from hvo_graph.geometry.transfer import keyframe_plane_jacobian
@@ -196,16 +196,16 @@ def _collinear(m: np.ndarray, tolerance: float) -> np.ndarray:
 
 
 def _ransac(front: MeasurementFrontEnd, m_ref: np.ndarray, m: np.ndarray) -> np.ndarray:
-    """(F, N) RANSAC inliers of the leading frames (all True without RANSAC or where all
-    points are one consensus set), up to the first frame whose RANSAC fails or keeps
-    fewer than ``min_points`` (``process`` refuses it)."""
+    """(F, N) RANSAC inliers of the leading frames (all True without RANSAC; where the
+    left-out fits decide, their inliers: ``consensus_inliers``), up to the first frame
+    whose RANSAC fails or keeps fewer than ``min_points`` (``process`` refuses it)."""
     threshold = front.config.ransac_px
-    inliers = np.ones(m.shape[:2], dtype=bool)
     if threshold is None:
-        return inliers
+        return np.ones(m.shape[:2], dtype=bool)
     threshold /= front.camera.mean_focal
-    # Frames whose points are one consensus set need no RANSAC (estimate_homography).
-    for k in np.flatnonzero(~all_inliers(m_ref, m, threshold)).tolist():
+    # Frames the left-out fits decide need no RANSAC (estimate_homography).
+    inliers, decided = consensus_inliers(m_ref, m, threshold)
+    for k in np.flatnonzero(~decided).tolist():
         try:
             inliers[k] = _ransac_inliers(m_ref, m[k], threshold)
         except InputError:

@@ -1,11 +1,17 @@
-"""Whether every point of a frame is an inlier, so that RANSAC need not run.
+"""Which points of a frame are inliers, where that needs no RANSAC.
 
 RANSAC (OpenCV's ``findHomography``) keeps the largest consensus set it meets among
 the homographies of 4-point samples: the points within a transfer distance
 (``threshold``) of the sample's homography. When each point lies within the
 threshold of the homography fitted to *the other points*, all points form one
 consensus set, and RANSAC can find no larger one; with noisy minimal samples it
-often returns a smaller one (good points marked as outliers).
+often returns a smaller one (good points marked as outliers). When exactly one point
+lies beyond, and without it every other point is within the threshold of the fit of
+the rest, the others are the consensus set: the point left out is off the fit of all
+of them. With many points that is the usual case of a noisy frame (with 20 points
+and the threshold at 5 pixel sigmas, a fifth of the frames have one point beyond:
+its deleted residual also carries the others' fit's error), and RANSAC then ran
+on it to return the same set or a smaller one.
 
 The test must see an outlier even though a least-squares fit that includes it leans
 towards it: a point displaced by delta from the others' homography shows a residual
@@ -73,8 +79,23 @@ def deleted_distances(m_ref: np.ndarray, m_cur: np.ndarray) -> np.ndarray:
         return d / scale[1][:, None]
 
 
-def all_inliers(m_ref: np.ndarray, m_cur: np.ndarray, threshold: float) -> np.ndarray:
-    """(F,) bool: every point within ``threshold`` (normalized units, pixels / focal
-    length) of the homography of the others (:func:`deleted_distances`): RANSAC with
-    this threshold can keep no more points, and need not run."""
-    return np.all(deleted_distances(m_ref, m_cur) <= threshold, axis=1)
+def consensus_inliers(
+    m_ref: np.ndarray, m_cur: np.ndarray, threshold: float
+) -> tuple[np.ndarray, np.ndarray]:
+    """(inliers (F, N), decided (F,)): each point within ``threshold`` of the homography of
+    the others (:func:`deleted_distances`), and the frames where that answers RANSAC's
+    question, so that it need not run: every point within (one consensus set), or
+    exactly one point beyond and every other point within ``threshold`` of the fit of
+    the others without it (a consensus set of all but that point, which is off the fit
+    of all the others). Frames with more points beyond are undecided: RANSAC judges."""
+    inliers = deleted_distances(m_ref, m_cur) <= threshold
+    outside = np.count_nonzero(~inliers, axis=1)
+    decided = outside == 0
+    single = np.flatnonzero(outside == 1)
+    if single.size:  # the left-out fits again, without the one point beyond
+        kept = inliers[single]
+        shape = (len(single), m_cur.shape[1] - 1, 3)
+        ref = np.broadcast_to(m_ref, m_cur.shape)[single][kept].reshape(shape)
+        cur = m_cur[single][kept].reshape(shape)
+        decided[single] = np.all(deleted_distances(ref, cur) <= threshold, axis=1)
+    return inliers, decided

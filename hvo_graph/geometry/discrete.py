@@ -28,7 +28,7 @@ import cv2
 import numpy as np
 
 from hvo_graph.errors import InputError, as_matrix, as_number, as_points, as_vector
-from hvo_graph.geometry._consensus import all_inliers
+from hvo_graph.geometry._consensus import consensus_inliers
 from hvo_graph.types import Plane
 
 #: Smallest accepted ratio sigma_8 / sigma_1 of the (Hartley-normalized) DLT
@@ -184,8 +184,10 @@ def estimate_homography(
             ``cv2.findHomography(..., cv2.RANSAC, ransac_threshold)`` (the threshold is a
             transfer distance in normalized-coordinate units, i.e. pixels / focal length),
             then H is re-estimated by DLT on the inliers. RANSAC is not run when every
-            point lies within the threshold of the DLT of the other points: all points
-            are then one consensus set, and RANSAC can find no larger one.
+            point lies within the threshold of the DLT of the other points (all points
+            are then one consensus set, and RANSAC can find no larger one), nor when
+            exactly one does not and, without it, every other one does (that one is
+            left out): :func:`~hvo_graph.geometry._consensus.consensus_inliers`.
     Returns:
         H: (3, 3) homography with ||H||_F = 1 (scale and sign arbitrary: see
             :func:`euclidean_homography`).
@@ -198,8 +200,8 @@ def estimate_homography(
     inliers = np.ones(len(a), dtype=bool)
     if ransac_threshold is not None:
         thr = as_number(ransac_threshold, "ransac_threshold", above=0.0)
-        if not all_inliers(a, b[None], thr)[0]:
-            inliers = _ransac_inliers(a, b, thr)
+        within, decided = consensus_inliers(a, b[None], thr)
+        inliers = within[0] if decided[0] else _ransac_inliers(a, b, thr)
     return _dlt(a[inliers], b[inliers]), inliers
 
 
