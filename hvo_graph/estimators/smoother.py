@@ -283,17 +283,20 @@ class FactorGraphSmoother(Estimator):
     ) -> gtsam.Pose3:
         """The H_d factor of frame k (prior, between, or keyframe between); its pose value."""
         measured, cov, ref = pose_meas[:3]
-        noise = self._pose_noise(cov)
         if ref == 0:
             self._world_posed = True
-            factor = gtsam.PriorFactorPose3(X(k), measured, noise)
-            graph.add(factor)
+            factor = None
+            if self.backend.windowed or self.record is not None:  # else: the store's numbers
+                factor = gtsam.PriorFactorPose3(X(k), measured, self._pose_noise(cov))
+                graph.add(factor)
             self.backend.store.add_pose_prior(measured, cov)
             shared = pose_meas[3] if len(pose_meas) > 3 else None
             if shared is not None and not self._anchored:
                 self._anchor(graph, shared)
-            self._record_pose(factor, pose, pose_meas)
+            if factor is not None:
+                self._record_pose(factor, pose, pose_meas)
             return measured
+        noise = self._pose_noise(cov)
         if self.shared_reference_noise and not self._world_posed and not self._anchored:
             self._anchor(graph, _ZERO66)  # frame k0 had no pose: W is its frame all the same
         model = measurement_checks.keyframe_model(pose, k)
