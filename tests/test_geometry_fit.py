@@ -182,3 +182,26 @@ def test_batched_pose_fit_equals_the_per_frame_one(n_points):
         assert close(noise[0][k], want_noise[0]) and close(noise[1][k], want_noise[1])
         assert close(noise[2][k][:, np.repeat(used, 2)], want_noise[2])
         assert not noise[2][k][:, np.repeat(~used, 2)].any()
+
+
+def test_batched_null_vectors_and_ratios_are_the_svds():
+    from hvo_graph.geometry import _fit_batch
+
+    rng = np.random.default_rng(3)
+    A = rng.normal(size=(60, 8, 9))  # 4 points: 8 rows, a null space of one vector or more
+    B = rng.normal(size=(60, 40, 9))  # 20 points
+    # Near-degenerate systems (sigma_8 / sigma_1 ~1e-3 and ~1e-9: the second below the
+    # degeneracy tolerance, where the SVD decides).
+    for systems in (A, B):
+        U, s, Vt = np.linalg.svd(systems[:10], full_matrices=False)
+        s[:5, 7], s[5:, 7] = 1e-3 * s[:5, 0], 1e-9 * s[5:, 0]
+        systems[:10] = (U * s[:, None, :]) @ Vt
+    for systems in (A, B):
+        _, s, Vt = np.linalg.svd(systems, full_matrices=True)
+        want = s[:, 7] / s[:, 0]
+        h, ratio = _fit_batch._null_vectors(systems)
+        np.testing.assert_allclose(_fit_batch._ratios(systems), want, rtol=1e-6)
+        np.testing.assert_allclose(ratio, want, rtol=1e-6)
+        assert np.all((want[5:10] < 1e-8) == (ratio[5:10] < 1e-8))
+        # The null vector up to sign: the residual of the smallest singular value.
+        np.testing.assert_allclose(np.abs(np.sum(h * Vt[:, -1], axis=1)), 1.0, atol=1e-9)

@@ -56,7 +56,7 @@ def dlt(m_ref: np.ndarray, m_cur: np.ndarray, w: np.ndarray) -> tuple[np.ndarray
     """(H (F, 3, 3) with ||H||_F = 1, bad (F,)): the normalized DLT of
     :func:`~hvo_graph.geometry.discrete._dlt` per frame on its points of weight 1;
     ``bad`` where it would raise (a degenerate point set or correspondence)."""
-    F, n = m_cur.shape[:2]
+    F = len(m_cur)
     T_ref = hartley(m_ref[None], w)
     T_cur = hartley(m_cur, w)
     a = (m_ref @ _tr(T_ref)) * w[..., None]  # zero rows: the points left out
@@ -70,12 +70,11 @@ def dlt(m_ref: np.ndarray, m_cur: np.ndarray, w: np.ndarray) -> tuple[np.ndarray
     a_sets = (m_ref @ _tr(hartley(m_ref[None], weights))) * weights[..., None]
     ratio_ref = _ratios(_system(a_sets, a_sets))[np.ravel(first)]
     ratio_cur = _ratios(_system(b, b))
-    _, s, Vt = np.linalg.svd(_system(a, b), full_matrices=2 * n < 9)
-    ratio = s[:, 7] / s[:, 0]
+    h, ratio = _null_vectors(_system(a, b))
     bad = ~(
         (ratio_ref >= DEGENERACY_TOL) & (ratio_cur >= DEGENERACY_TOL) & (ratio >= DEGENERACY_TOL)
     )
-    Hn = Vt[:, -1].reshape(F, 3, 3)
+    Hn = h.reshape(F, 3, 3)
     H = np.linalg.solve(T_cur, Hn @ T_ref)
     return H / np.linalg.norm(H, axis=(1, 2))[:, None, None], bad
 
@@ -91,10 +90,36 @@ def _system(src: np.ndarray, dst: np.ndarray) -> np.ndarray:
     return A
 
 
+#: Below this sigma_8 / sigma_1 a system's ratio (and null vector) come from its SVD:
+#: from the eigenvalues of A^T A, squared, the ratio would not resolve DEGENERACY_TOL.
+_EIGEN_RATIO: float = 1e-5
+
+
 def _ratios(A: np.ndarray) -> np.ndarray:
-    """(F,) sigma_8 / sigma_1 of each system."""
-    s = np.linalg.svd(A, compute_uv=False)
-    return s[:, 7] / s[:, 0]
+    """(F,) sigma_8 / sigma_1 of each (F, R, 9) system: the square roots of the eigenvalues
+    of the 9 x 9 A^T A (cheaper than the SVD of A), the SVD where it is below
+    :data:`_EIGEN_RATIO`."""
+    lam = np.linalg.eigvalsh(_tr(A) @ A)
+    ratio = np.sqrt(np.maximum(lam[:, 1], 0.0) / lam[:, 8])
+    low = np.flatnonzero(~(ratio >= _EIGEN_RATIO))
+    if low.size:
+        s = np.linalg.svd(A[low], compute_uv=False)
+        ratio[low] = s[:, 7] / s[:, 0]
+    return ratio
+
+
+def _null_vectors(A: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """(h (F, 9), ratio (F,)): each (F, R, 9) system's unit right singular vector of its
+    smallest singular value (the eigenvector of A^T A of its smallest eigenvalue) and
+    sigma_8 / sigma_1 (:func:`_ratios`), the SVD's where the ratio is small."""
+    lam, V = np.linalg.eigh(_tr(A) @ A)
+    h = V[:, :, 0]
+    ratio = np.sqrt(np.maximum(lam[:, 1], 0.0) / lam[:, 8])
+    low = np.flatnonzero(~(ratio >= _EIGEN_RATIO))
+    if low.size:
+        _, s, Vt = np.linalg.svd(A[low], full_matrices=A.shape[1] < 9)
+        h[low], ratio[low] = Vt[:, -1], s[:, 7] / s[:, 0]
+    return h, ratio
 
 
 def euclidean(
