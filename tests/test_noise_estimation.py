@@ -233,7 +233,7 @@ def test_the_interval_search_ends_where_a_scan_of_the_whole_axis_ends(n, r, monk
     evaluate = noise_estimation._evaluate
 
     def counted(*args):
-        passes.append(len(args[4]))
+        passes.append(len(args[2]))  # (likelihood, stretches, log_w, log_v)
         return evaluate(*args)
 
     monkeypatch.setattr(noise_estimation, "_evaluate", counted)
@@ -245,14 +245,47 @@ def test_the_interval_search_ends_where_a_scan_of_the_whole_axis_ends(n, r, monk
     assert staged.acceleration_sigma == whole.acceleration_sigma
 
 
-def test_a_table_and_its_records_fit_on_the_same_latest_poses(monkeypatch):
+def test_a_table_and_its_records_fit_on_the_same_sampled_poses(monkeypatch):
     frames = wna_sequence(1e-2, 1e-3, r=1e-6, n=60)
-    # Every third frame without a pose: the tail is counted in poses, not frames.
+    # Every third frame without a pose: the stretches are counted in poses, not frames.
     frames = [
         f if k % 3 else FrameMeasurement(f.index, f.t, None, None) for k, f in enumerate(frames)
     ]
     monkeypatch.setattr(noise_estimation, "MAX_POSES", 25)
     from_records = estimate_process_noise(frames, default=(1.0, 1.0))
     from_table = estimate_process_noise(MeasurementTable(frames), default=(1.0, 1.0))
-    assert from_records.poses == from_table.poses == 25
+    # 40 poses > 25: six stretches of 25 // 6 = 4 poses.
+    assert from_records.poses == from_table.poses == 24
     assert from_records.acceleration_sigma == from_table.acceleration_sigma
+
+
+def two_regime_sequence(fast: float, slow: float, n: int, seed: int = 0) -> list:
+    """n frames of WNA motion with linear density ``fast``, then n with ``slow`` (one
+    continuous motion: the second half starts where the first ends)."""
+    first = wna_sequence(1e-3, fast, r=1e-6, n=n, seed=seed)
+    second = wna_sequence(1e-3, slow, r=1e-6, n=n + 1, seed=seed + 1)
+    last = first[-1].pose
+    end = gtsam.Pose3(gtsam.Rot3(last.rotation), last.position)
+    start = gtsam.Pose3(gtsam.Rot3(second[0].pose.rotation), second[0].pose.position)
+    frames = list(first)
+    for f in second[1:]:
+        p = end.compose(start.between(gtsam.Pose3(gtsam.Rot3(f.pose.rotation), f.pose.position)))
+        pose = PoseMeasurement(p.rotation().matrix(), p.translation(), f.pose.covariance)
+        frames.append(FrameMeasurement(n - 1 + f.index, (n - 1 + f.index) / 30, pose, None))
+    return frames
+
+
+def test_a_long_sequence_is_fitted_over_its_whole_length(monkeypatch):
+    # A fast start and a slow end, each longer than MAX_POSES: the fit reads stretches
+    # spread over both, so its density lies between the halves' own (the latest poses
+    # alone gave the slow end's, and a smoother too confident on the fast start).
+    monkeypatch.setattr(noise_estimation, "MAX_POSES", 300)
+    frames = two_regime_sequence(fast=1.0, slow=1e-3, n=400)
+    assert np.all(np.diff([f.t for f in frames]) > 0)
+    whole = estimate_process_noise(frames, default=(1.0, 1.0))
+    fast = estimate_process_noise(frames[:400], default=(1.0, 1.0))
+    slow = estimate_process_noise(frames[400:], default=(1.0, 1.0))
+    q_fast, q_slow, q_whole = (e.acceleration_sigma[1] ** 2 for e in (fast, slow, whole))
+    assert q_fast > 100 * q_slow  # the halves are told apart
+    assert whole.poses == 300
+    assert 10 * q_slow < q_whole < q_fast

@@ -79,9 +79,14 @@ INTERVAL_FIRST_STEPS: int = 11
 #: Fewest pose measurements for an estimate; shorter sequences keep the default.
 MIN_POSES: int = 10
 
-#: Most poses the likelihood is evaluated on (the latest ones); beyond, the estimate
-#: changes little and the cost would grow with the sequence.
+#: Most poses the likelihood is evaluated on; beyond, the estimate changes little and
+#: the cost would grow with the sequence.
 MAX_POSES: int = 3000
+
+#: A sequence with more than :data:`MAX_POSES` poses is represented by this many
+#: stretches of MAX_POSES / STRETCHES consecutive poses, spread evenly from its start to
+#: its end (its latest poses alone would fit a long sequence on how it ends).
+STRETCHES: int = 6
 
 
 @dataclass(frozen=True)
@@ -188,16 +193,20 @@ def estimate_process_noise(
         The estimate; ``poses`` = 0 and the default when there was too little data
         (``model`` then "wnj" for "auto").
     """
-    t, s, C = unrolled_poses(_latest_poses(frames, MAX_POSES), translation=translation)
-    if len(t) < MIN_POSES:
+    data = [
+        tuple(a[-count:] for a in unrolled_poses(stretch, translation=translation))
+        for stretch, count in _sampled_stretches(frames, MAX_POSES, STRETCHES)
+    ]
+    data = [d for d in data if len(d[0]) > 1]  # a stretch of one pose has no step
+    poses = sum(len(t) for t, _, _ in data)
+    if poses < MIN_POSES:
         return ProcessNoiseEstimate(default, float("nan"), 0, "wnj" if model == "auto" else model)
-    t, s, C = t[-MAX_POSES:], s[-MAX_POSES:], C[-MAX_POSES:]
     decades = np.log10(MAX_SPECTRAL_DENSITY / floor) / np.log10(
         MAX_SPECTRAL_DENSITY / MIN_SPECTRAL_DENSITY
     )
     grid = max(grid, int(np.ceil((grid - 1) * decades)) + 1)
     fits = [
-        _fit(t, s, C, name, grid, refinements, floor)
+        _fit(data, poses, name, grid, refinements, floor)
         for name in (("wna", "wnj") if model == "auto" else (model,))
     ]
     return max(fits, key=lambda fit: fit.log_likelihood)
@@ -242,26 +251,32 @@ def filter_process_noise(
 _LIKELIHOODS = {"wna": log_likelihood, "wnj": jerk_log_likelihood}
 
 
-def _latest_poses(frames: Sequence[FrameMeasurement], count: int) -> Sequence[FrameMeasurement]:
-    """The tail of ``frames`` holding the latest ``count`` poses and the pose before them
-    (the likelihood reads only those; unrolling the whole sequence grows with it)."""
+#: The poses of a sequence a fit reads: (t (K,), s (K, 6), C (K, 6, 6)) per stretch.
+_Stretch = tuple[np.ndarray, np.ndarray, np.ndarray]
+
+
+def _sampled_stretches(
+    frames: Sequence[FrameMeasurement], count: int, stretches: int
+) -> list[tuple[Sequence[FrameMeasurement], int]]:
+    """(frames, poses to keep) of the stretches a fit reads: every frame when there are
+    at most ``count`` poses; else ``stretches`` runs of count // stretches consecutive
+    poses, evenly spread from the first pose to the last, each with the pose before it
+    (unrolling starts there; the caller keeps the run's own poses). Unrolling the whole
+    sequence would grow with it."""
     has_pose = getattr(frames, "has_pose", None)  # a MeasurementTable's column: no records
-    if has_pose is not None:
-        posed = np.flatnonzero(has_pose)
-        return frames[int(posed[-count - 1]) :] if len(posed) > count else frames
-    seen = 0
-    for start in range(len(frames) - 1, -1, -1):
-        if frames[start].pose is not None:
-            seen += 1
-            if seen > count:
-                return frames[start:]
-    return frames
+    if has_pose is None:
+        has_pose = np.fromiter((f.pose is not None for f in frames), bool, len(frames))
+    posed = np.flatnonzero(has_pose)
+    if len(posed) <= count:
+        return [(frames, count)]
+    run = count // stretches
+    firsts = np.linspace(1, len(posed) - run, stretches).round().astype(int)
+    return [(frames[int(posed[a - 1]) : int(posed[a + run - 1]) + 1], run) for a in firsts]
 
 
 def _fit(
-    t: np.ndarray,
-    s: np.ndarray,
-    C: np.ndarray,
+    data: list[_Stretch],
+    poses: int,
     model: str,
     grid: int,
     refinements: int,
@@ -273,39 +288,37 @@ def _fit(
     step = axis_w[1] - axis_w[0]
     for _ in range(refinements + 1):
         A, B = np.meshgrid(axis_w, axis_v, indexing="ij")
-        ll = _evaluate(likelihood, t, s, C, A.ravel(), B.ravel())
+        ll = _evaluate(likelihood, data, A.ravel(), B.ravel())
         i = int(np.argmax(ll))
         best, best_ll = (float(A.ravel()[i]), float(B.ravel()[i])), float(ll[i])
         step /= 3.0
         axis_w = np.clip(best[0] + step * np.arange(-3, 4), lo, hi)
         axis_v = np.clip(best[1] + step * np.arange(-3, 4), lo, hi)
-    upper = _upper_interval_ends(likelihood, t, s, C, best, best_ll, hi)
+    upper = _upper_interval_ends(likelihood, data, best, best_ll, hi)
     sigma = (float(10.0 ** (upper[0] / 2)), float(10.0 ** (upper[1] / 2)))
-    return ProcessNoiseEstimate(sigma, best_ll, len(t), model)
+    return ProcessNoiseEstimate(sigma, best_ll, poses, model)
 
 
 def _evaluate(
     likelihood: Callable[..., np.ndarray],
-    t: np.ndarray,
-    s: np.ndarray,
-    C: np.ndarray,
+    data: list[_Stretch],
     log_w: np.ndarray,
     log_v: np.ndarray,
 ) -> np.ndarray:
     """(M,) gated likelihoods of the pairs (10^log_w, 10^log_v), each distinct pair filtered
-    once (grids clipped at a bound repeat pairs). At extreme densities (~1e4 jerk) the
-    filter's covariance can lose definiteness by rounding (NaN): such a pair, far from the
-    optimum, is ruled out (-inf)."""
+    once (grids clipped at a bound repeat pairs), summed over the stretches (each filtered
+    from its own broad prior). At extreme densities (~1e4 jerk) the filter's covariance
+    can lose definiteness by rounding (NaN): such a pair, far from the optimum, is ruled
+    out (-inf)."""
     unique, index = np.unique(np.stack((log_w, log_v), axis=1), axis=0, return_inverse=True)
-    ll = likelihood(t, s, C, 10.0 ** unique[:, 0], 10.0 ** unique[:, 1], OUTLIER_GATE)
+    q_w, q_v = 10.0 ** unique[:, 0], 10.0 ** unique[:, 1]
+    ll = sum(likelihood(t, s, C, q_w, q_v, OUTLIER_GATE) for t, s, C in data)
     return np.where(np.isnan(ll), -np.inf, ll)[index.ravel()]
 
 
 def _upper_interval_ends(
     likelihood: Callable[..., np.ndarray],
-    t: np.ndarray,
-    s: np.ndarray,
-    C: np.ndarray,
+    data: list[_Stretch],
     best: tuple[float, float],
     best_ll: float,
     hi: float,
@@ -326,7 +339,7 @@ def _upper_interval_ends(
         for axis, r in scans.items():
             trial, other = trials[axis][r], np.full(len(trials[axis][r]), best[1 - axis])
             pairs.append((trial, other) if axis == 0 else (other, trial))
-        ll = _evaluate(likelihood, t, s, C, *(np.concatenate(q) for q in zip(*pairs, strict=True)))
+        ll = _evaluate(likelihood, data, *(np.concatenate(q) for q in zip(*pairs, strict=True)))
         start = 0
         for axis, r in scans.items():
             count = len(trials[axis][r])
