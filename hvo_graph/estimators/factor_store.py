@@ -38,6 +38,7 @@ from gtsam.symbol_shorthand import A, V, X
 from hvo_graph.estimators.chunked_lm import chunked_levenberg_marquardt
 from hvo_graph.estimators.least_squares import levenberg_marquardt
 from hvo_graph.estimators.motion_model import STORED_FORMS, MotionFactors
+from hvo_graph.estimators.state_log import GrowingRows
 
 __all__ = [
     "CHUNK_FRAMES",
@@ -70,29 +71,6 @@ MAX_SWEEPS: int = 6
 UNIT_CALIBRATION = gtsam.Cal3_S2(1.0, 1.0, 0.0, 0.0, 0.0)
 
 
-class _Rows:
-    """A growing 2-D float array (capacity doubles): rows appended one or many at a time."""
-
-    def __init__(self, width: int, dtype: type = float) -> None:
-        self.data = np.empty((16, width), dtype=dtype)
-        self.size = 0
-
-    def append(self, row: Sequence[float] | np.ndarray) -> None:
-        if self.size == len(self.data):
-            self.data = np.concatenate([self.data, np.empty_like(self.data)])
-        self.data[self.size] = row
-        self.size += 1
-
-    def extend(self, rows: np.ndarray) -> None:
-        while self.size + len(rows) > len(self.data):
-            self.data = np.concatenate([self.data, np.empty_like(self.data)])
-        self.data[self.size : self.size + len(rows)] = rows
-        self.size += len(rows)
-
-    def view(self) -> np.ndarray:
-        return self.data[: self.size]
-
-
 class FactorStore:
     """Every factor of a smoother run, motion and world-pose factors as array rows.
 
@@ -115,16 +93,16 @@ class FactorStore:
         self.noise = noise
         self.pixel_noise = pixel_noise
         self.keeps = noise is not None or pixel_noise is not None
-        self._index = _Rows(1, np.int64)  # frame index by position
-        self._motion = _Rows(5)  # position of the later frame, dt, s_w, s_v, model
-        self._prior = _Rows(1 + 12 + 36)  # position, R (row-major) and t, covariance
-        self._span = _Rows(2, np.int64)  # oldest and newest position of each other factor
+        self._index = GrowingRows(1, np.int64)  # frame index by position
+        self._motion = GrowingRows(5)  # position of the later frame, dt, s_w, s_v, model
+        self._prior = GrowingRows(1 + 12 + 36)  # position, R (row-major) and t, covariance
+        self._span = GrowingRows(2, np.int64)  # oldest and newest position of each other factor
         self._other: list[gtsam.NonlinearFactor] = []
         self._motion_factors = MotionFactors()
         #: Whether any frame has a twist rate A(k) (the white-noise-jerk model).
         self.rates = False
-        self._observation = _Rows(5)  # position of the frame, m (2), sigma, robust (1/0)
-        self._observed = _Rows(1, np.int64)  # landmark key of each observation
+        self._observation = GrowingRows(5)  # position of the frame, m (2), sigma, robust (1/0)
+        self._observed = GrowingRows(1, np.int64)  # landmark key of each observation
         #: Landmark key -> its own factors (the plane prior), for the landmarks kept.
         self.landmarks: dict[int, list[gtsam.NonlinearFactor]] = {}
         #: Keys of the landmarks left out (:meth:`drop_landmarks`).
@@ -158,6 +136,27 @@ class FactorStore:
         row[10:13] = pose.translation()
         row[13:] = np.asarray(covariance, dtype=float).ravel()
         self._prior.append(row)
+
+    def add_world_frames(
+        self,
+        indices: np.ndarray,
+        dts: np.ndarray,
+        sigma: tuple[float, float],
+        model: str,
+        poses: np.ndarray,
+    ) -> None:
+        """n new frames, each with its motion factor from the frame before (over ``dts``)
+        and a world pose prior (``poses`` (n, 48): R row-major, t, covariance): what
+        :meth:`add_frame`, :meth:`add_motion`, :meth:`add_pose_prior` add, at once."""
+        if not self.keeps:
+            return
+        n, first = len(indices), len(self)
+        self._index.extend(np.asarray(indices, dtype=np.int64)[:, None])
+        self.rates = self.rates or model == "wnj"
+        places = np.arange(first, first + n, dtype=float)[:, None]
+        form = np.full((n, 1), STORED_FORMS.index(model), dtype=float)
+        self._motion.extend(np.hstack((places, dts[:, None], np.tile(sigma, (n, 1)), form)))
+        self._prior.extend(np.hstack((places, poses)))
 
     def add_factor(self, factor: gtsam.NonlinearFactor) -> None:
         """Any other factor, on frames added already."""

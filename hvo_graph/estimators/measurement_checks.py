@@ -441,12 +441,12 @@ def _screen(frames: Sequence[FrameMeasurement], split_reference: bool) -> list[S
 
 def screened(
     frames: Iterable[FrameMeasurement], split_reference: bool
-) -> Iterator[tuple[FrameMeasurement, Screened | None]]:
-    """Each frame with its :func:`screen_frames` entry, :data:`SCREEN_BLOCK` frames screened
-    at a time (a block's records are held, not the whole sequence's)."""
+) -> Iterator[tuple[list[FrameMeasurement], list[Screened | None]]]:
+    """Blocks of :data:`SCREEN_BLOCK` frames with their :func:`screen_frames` entries (a
+    block's records are held, not the whole sequence's)."""
     stream = iter(frames)
     while block := list(itertools.islice(stream, SCREEN_BLOCK)):
-        yield from zip(block, screen_frames(block, split_reference=split_reference), strict=True)
+        yield block, screen_frames(block, split_reference=split_reference)
 
 
 def _screened_frame(

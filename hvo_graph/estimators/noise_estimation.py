@@ -410,6 +410,11 @@ class ProcessNoiseSchedule:
             self._fit(frames, "auto" if self._choose else self.model)
             self._next = None
 
+    @property
+    def refits(self) -> bool:
+        """Whether :meth:`observe` may still refit (streamed "auto" frames)."""
+        return self._next is not None
+
     def observe(self, frame: FrameMeasurement) -> bool:
         """Record one streamed frame; True when the values changed (a refit)."""
         if self._next is None:

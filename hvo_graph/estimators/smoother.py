@@ -35,7 +35,6 @@ Solvers ("isam2": ``--method smoother``; "batch"; "fixed-lag"): the back ends of
 from __future__ import annotations
 
 import functools
-import math
 from collections.abc import Iterable, Sequence
 
 import gtsam
@@ -44,8 +43,19 @@ from gtsam.symbol_shorthand import A, V, X
 
 from hvo_graph.errors import InputError, as_choice, as_integer, as_number
 from hvo_graph.estimators import measurement_checks
+from hvo_graph.estimators._world_runs import add_world_run
 from hvo_graph.estimators.base import Estimator
-from hvo_graph.estimators.choices import ROBUST_LOSSES, SOLVERS, VELOCITY_FACTOR_POLICIES
+from hvo_graph.estimators.choices import (
+    ANCHOR_START_SIGMA,
+    DEFAULT_INITIAL_TWIST_SIGMA,
+    DEFAULT_RELINEARIZE_SKIP,
+    DEFAULT_RELINEARIZE_THRESHOLD,
+    DEFAULT_ROBUST_THRESHOLD,
+    DEFAULT_WORLD_SIGMA,
+    ROBUST_LOSSES,
+    SOLVERS,
+    VELOCITY_FACTOR_POLICIES,
+)
 from hvo_graph.estimators.factor_record import FactorRecord
 from hvo_graph.estimators.factors import (
     _mean_velocity_factor,
@@ -81,28 +91,6 @@ __all__ = [
     "FixedLagSmoother",
     "levenberg_marquardt",
 ]
-
-#: Default robust threshold on the whitened residual norm (GTSAM applies the
-#: M-estimator to sqrt(e^T Sigma^-1 e)): sqrt of the 95 % quantile of chi^2 with
-#: 6 degrees of freedom, so an inlier 6-vector is down-weighted 5 % of the time.
-DEFAULT_ROBUST_THRESHOLD: float = math.sqrt(12.591587243743977)
-
-#: Standard deviation (rad, m) of the prior X(k0) = I that defines the world frame.
-DEFAULT_WORLD_SIGMA: float = 1e-6
-
-#: Std (rad, m) of X(k0) = I until a pose tells the reference noise (shared_reference_noise).
-ANCHOR_START_SIGMA: float = 1.0
-
-#: Standard deviation (rad/s, m/s) of the zero-mean prior on the first twist V(k0).
-DEFAULT_INITIAL_TWIST_SIGMA: float = 10.0
-
-#: ISAM2 relinearizes a pose whose accumulated delta exceeds this (rad, m): the initial
-#: values (the measurements) are within noise (~2 cm, 0.5 deg) of the optimum, so the
-#: linearization error O(delta^2) stays far below the noise (docs/smoother.md).
-DEFAULT_RELINEARIZE_THRESHOLD: float = 0.05
-
-#: ISAM2 checks for relinearization every this many updates (GTSAM's default).
-DEFAULT_RELINEARIZE_SKIP: int = 10
 
 _ZERO6 = np.zeros(6)
 _ZERO66 = np.zeros((6, 6))  # one shared array, not one per frame (never written to)
@@ -259,9 +247,16 @@ class FactorGraphSmoother(Estimator):
             self.acceleration_sigma = self.process_noise.sigma
             # Only ISAM2 can skip its window: the fixed-lag smoother is its window.
             self.backend.windowed = online or self.robust is not None or self.solver != "isam2"
-        for screened in measurement_checks.screened(frames, self.shared_reference_noise):
-            self._screened = screened
-            self.update(screened[0])
+        # Offline, frames posed against the world need no update of their own (world_runs).
+        bulk = not self.backend.windowed and self.record is None
+        for block, entries in measurement_checks.screened(frames, self.shared_reference_noise):
+            i = 0
+            while i < len(block):
+                added = add_world_run(self, block, entries, i) if bulk else 0
+                if not added:
+                    self._screened = block[i], entries[i]
+                    self.update(block[i])
+                i += added or 1
         return self.trajectory()
 
     def _checked_frame(self, frame: FrameMeasurement) -> CheckedFrame:

@@ -8,13 +8,13 @@ entry ~0.1 kB. These keep the numbers in arrays, or read an existing list.
 from __future__ import annotations
 
 import bisect
-from collections.abc import Iterator
+from collections.abc import Iterator, Sequence
 
 import numpy as np
 
 from hvo_graph.types import StateEstimate, Trajectory
 
-__all__ = ["SortedIndices", "StateLog"]
+__all__ = ["GrowingRows", "SortedIndices", "StateLog"]
 
 
 class StateLog:
@@ -65,11 +65,11 @@ class StateLog:
         rotations: np.ndarray,
         positions: np.ndarray,
         twists: np.ndarray,
-        covariances: np.ndarray,
+        covariances: np.ndarray | None,
     ) -> None:
         """Append n states at once: what n :meth:`append` calls of their
         :class:`StateEstimate` would keep. Shapes (n,), (n,), (n, 3, 3), (n, 3), (n, 6),
-        (n, 12, 12)."""
+        (n, 12, 12) or None (states without a covariance)."""
         n = len(index)
         need = self._n + n
         if need > len(self._index):
@@ -78,7 +78,7 @@ class StateLog:
             self._values.resize((capacity, 19), refcheck=False)
             if self._covariance is not None:
                 self._covariance.resize((capacity, 12, 12), refcheck=False)
-        if self._covariance is None:
+        if self._covariance is None and covariances is not None:
             self._covariance = np.empty((len(self._index), 12, 12))
         rows = slice(self._n, need)
         self._index[rows] = index
@@ -86,8 +86,9 @@ class StateLog:
         self._values[rows, 1:10] = rotations.reshape(n, 9)
         self._values[rows, 10:13] = positions
         self._values[rows, 13:19] = twists
-        self._covariance[rows] = covariances
-        self._with_covariance += n
+        if covariances is not None:
+            self._covariance[rows] = covariances  # type: ignore[index]
+            self._with_covariance += n
         self._n = need
 
     def last(self) -> tuple[int, float]:
@@ -142,3 +143,34 @@ class SortedIndices:
     def __contains__(self, value: object) -> bool:
         i = bisect.bisect_left(self.values, value)  # type: ignore[call-overload]
         return i < len(self.values) and self.values[i] == value
+
+
+class GrowingRows:
+    """A growing 2-D array (capacity doubles): rows appended one or many at a time;
+    ``view()`` the rows so far.
+
+    Args:
+        width: values per row; dtype: their type.
+    """
+
+    def __init__(self, width: int, dtype: type = float) -> None:
+        self.data = np.empty((16, width), dtype=dtype)
+        self.size = 0
+
+    def append(self, row: Sequence[float] | np.ndarray) -> None:
+        """Add one row."""
+        if self.size == len(self.data):
+            self.data = np.concatenate([self.data, np.empty_like(self.data)])
+        self.data[self.size] = row
+        self.size += 1
+
+    def extend(self, rows: np.ndarray) -> None:
+        """Add the rows of a (n, width) array."""
+        while self.size + len(rows) > len(self.data):
+            self.data = np.concatenate([self.data, np.empty_like(self.data)])
+        self.data[self.size : self.size + len(rows)] = rows
+        self.size += len(rows)
+
+    def view(self) -> np.ndarray:
+        """The (size, width) rows so far (a view: valid until the next append)."""
+        return self.data[: self.size]

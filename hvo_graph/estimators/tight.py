@@ -62,7 +62,11 @@ from gtsam.symbol_shorthand import L, V, X
 from hvo_graph.errors import InputError, as_integer, as_number
 from hvo_graph.estimators import plane_gauge
 from hvo_graph.estimators.base import Estimator
-from hvo_graph.estimators.choices import TIGHT_SOLVERS
+from hvo_graph.estimators.choices import (
+    DEFAULT_INITIAL_TWIST_SIGMA,
+    DEFAULT_WORLD_SIGMA,
+    TIGHT_SOLVERS,
+)
 from hvo_graph.estimators.landmarks import DEFAULT_MAX_LANDMARKS, back_project, farthest_points
 from hvo_graph.estimators.motion_model import MotionFactors
 from hvo_graph.estimators.noise_estimation import ProcessNoiseSchedule
@@ -105,12 +109,6 @@ DEFAULT_REJECT_CHI2: float = 13.815510557964274
 
 #: A track failing the gate in this many consecutive observations is rejected.
 DEFAULT_REJECT_AFTER: int = 3
-
-#: Standard deviation (rad, m) of X(k0) = I.
-DEFAULT_WORLD_SIGMA: float = 1e-6
-
-#: Standard deviation (rad/s, m/s) of the zero-mean prior on the first twist.
-DEFAULT_INITIAL_TWIST_SIGMA: float = 10.0
 
 _ZERO6 = np.zeros(6)
 

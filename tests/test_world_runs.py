@@ -1,0 +1,144 @@
+"""The offline smoother's runs of world-posed frames, added in bulk (estimators._world_runs):
+the same store, initial values, bookkeeping and trajectory as one update per frame."""
+
+from __future__ import annotations
+
+import dataclasses
+
+import gtsam
+import numpy as np
+import pytest
+
+from hvo_graph.errors import InputError
+from hvo_graph.estimators import measurement_checks
+from hvo_graph.estimators import smoother as smoother_module
+from hvo_graph.estimators._world_runs import add_world_run
+from hvo_graph.estimators.smoother import FactorGraphSmoother
+from hvo_graph.frontend import measure_sequence
+from hvo_graph.sim.families import draw
+from hvo_graph.types import FrameMeasurement
+
+
+def state(smoother: FactorGraphSmoother) -> dict:
+    """Everything a run leaves behind that the final solve or a later update reads."""
+    store, initial, log = smoother.backend.store, smoother.backend.initial, smoother._online
+    return {
+        "index": store._index.view().copy(),
+        "motion": store._motion.view().copy(),
+        "prior": store._prior.view().copy(),
+        "other": len(store._other),
+        "initial": {
+            key: initial.atPose3(key).matrix()
+            if gtsam.Symbol(key).chr() == ord("x")
+            else np.asarray(initial.atVector(key))
+            for key in initial.keys()
+        },
+        "counts": dict(smoother.velocity_factor_counts),
+        "reference_cov": np.array(smoother._reference_cov),
+        "log": (log._index[: len(log)].copy(), log._values[: len(log)].copy()),
+        "last": (smoother._indices[-1], smoother._times[-1], smoother._last_reference),
+        "pose": smoother._pose.matrix(),
+        "twist": np.asarray(smoother._twist),
+    }
+
+
+def equal(a: dict, b: dict) -> None:
+    assert a.keys() == b.keys()
+    for name in a:
+        if name == "initial":
+            assert a[name].keys() == b[name].keys()
+            for key in a[name]:
+                assert np.array_equal(a[name][key], b[name][key]), (name, key)
+        elif name == "log":
+            assert all(np.array_equal(x, y) for x, y in zip(a[name], b[name], strict=True))
+        else:
+            assert (
+                np.array_equal(a[name], b[name])
+                if isinstance(a[name], np.ndarray)
+                else (a[name] == b[name])
+            ), name
+
+
+def offline(frames, monkeypatch, bulk: bool, **options):
+    """(smoother, trajectory, frames added in bulk) of run(frames, online=False)."""
+    added: list[int] = []
+    real = smoother_module.add_world_run
+
+    def counted(*args):
+        n = real(*args) if bulk else 0
+        added.append(n)
+        return n
+
+    monkeypatch.setattr(smoother_module, "add_world_run", counted)
+    smoother = FactorGraphSmoother(**options)
+    trajectory = smoother.run(frames, online=False)
+    return smoother, trajectory, sum(added)
+
+
+def family_frames(family: str, seed: int) -> list[FrameMeasurement]:
+    scenario = draw(family, seed).scenario
+    return measure_sequence(
+        scenario.observations, scenario.camera, scenario.plane, pixel_sigma=scenario.pixel_sigma
+    )
+
+
+@pytest.mark.parametrize(
+    "options",
+    [
+        {},
+        {"shared_reference_noise": False},
+        {"motion_model": "wnj", "acceleration_sigma": (0.1, 0.1)},
+        {"velocity_factors": "all"},
+    ],
+    ids=["default", "no-split", "wnj", "all-twists"],
+)
+@pytest.mark.parametrize("data", ["paper", "traverse", "outliers-dropouts"])
+def test_runs_in_bulk_leave_what_updates_leave(data, options, noisy_run, monkeypatch):
+    frames = noisy_run[1] if data == "paper" else family_frames(data, 1)
+    bulk, bulk_trajectory, added = offline(frames, monkeypatch, True, **options)
+    each, each_trajectory, none = offline(frames, monkeypatch, False, **options)
+    assert none == 0
+    # Every frame posed against the world after the first goes in bulk (dropped frames
+    # included), unless it has a twist that becomes a factor ("all"); the traverse's
+    # keyframe poses go one by one.
+    if options.get("velocity_factors") == "all":
+        assert added == 0
+    elif data == "traverse":
+        assert 0 < added < len(frames) - 1
+    else:
+        assert added == len(frames) - 1
+    equal(state(bulk), state(each))
+    for field in ("t", "rotations", "positions", "twists"):
+        assert np.array_equal(getattr(bulk_trajectory, field), getattr(each_trajectory, field))
+
+
+def test_a_frame_out_of_order_inside_a_run_fails_as_its_update_does(noisy_run, monkeypatch):
+    frames = list(noisy_run[1][:80])
+    frames[50] = dataclasses.replace(frames[50], t=frames[49].t)
+    message = (
+        rf"^frame 50 \(t={frames[49].t}\) does not follow frame 49 \(t={frames[49].t}\): "
+        "frames must arrive in increasing order$"
+    )
+    for bulk in (True, False):
+        smoother = FactorGraphSmoother()
+        monkeypatch.setattr(
+            smoother_module,
+            "add_world_run",
+            smoother_module.add_world_run if bulk else (lambda *args: 0),
+        )
+        with pytest.raises(InputError, match=message):
+            smoother.run(frames, online=False)
+        assert smoother._indices == list(range(50))  # the frames before it are in
+
+
+def test_no_bulk_while_streamed_refits_are_due(noisy_run):
+    # Frames streamed first ("auto": refits after 30, 60, ... frames) refit on what comes
+    # next, frame by frame: a run of them is not added in bulk.
+    frames = noisy_run[1][:60]
+    smoother = FactorGraphSmoother()
+    for frame in frames[:10]:
+        smoother.update(frame)
+    assert smoother.process_noise.refits
+    block, entries = next(measurement_checks.screened(frames[10:], True))
+    assert add_world_run(smoother, block, entries, 0) == 0
+    assert len(smoother._indices) == 10
