@@ -125,12 +125,13 @@ class _Covariances:
         out[_UPPER] = out[_LOWER] = self.values[k]
         return out
 
-    def unpacked(self) -> np.ndarray:
-        """(n, 6, 6) every matrix (for iterating a block: one call, not one per record)."""
+    def unpacked(self, rows: np.ndarray | slice = slice(None)) -> np.ndarray:
+        """(n, 6, 6) the matrices ``rows`` (default all: one call, not one per record)."""
         if not self.symmetric:
-            return self.values
-        out = np.empty((len(self.values), 6, 6))
-        out[:, _UPPER[0], _UPPER[1]] = out[:, _LOWER[0], _LOWER[1]] = self.values
+            return self.values[rows]
+        values = self.values[rows]
+        out = np.empty((len(values), 6, 6))
+        out[:, _UPPER[0], _UPPER[1]] = out[:, _LOWER[0], _LOWER[1]] = values
         return out
 
 
@@ -202,6 +203,33 @@ class _Block:
                 seen.add(id(p.normal))
                 self.normals.append(p.normal)
         self.size = n
+
+    def pose_rows(self, a: int, b: int) -> dict[str, np.ndarray]:
+        """Rows [a, b)'s poses and twists as arrays (:meth:`MeasurementTable.pose_rows`)."""
+        slot = self.slot[a:b]
+        n, plain = len(slot), np.flatnonzero(slot >= 0)
+        posed, moving = np.zeros(n, dtype=bool), np.zeros(n, dtype=bool)
+        posed[plain], moving[plain] = self.has[slot[plain], 0], self.has[slot[plain], 1]
+        k, v = self.pose_row[slot[posed]], self.velocity_row[slot[moving]]
+
+        def spread(values: np.ndarray, mask: np.ndarray, fill: float = 0.0) -> np.ndarray:
+            out = np.full((n, *values.shape[1:]), fill, dtype=values.dtype)
+            out[mask] = values
+            return out
+
+        covariances = (self.pose["covariance"], self.pose["reference_covariance"])
+        return {
+            "posed": posed,
+            "reference": spread(self.reference[k], posed, -1),
+            "rotation": spread(self.pose["rotation"][k], posed),
+            "position": spread(self.pose["position"][k], posed),
+            "covariance": spread(covariances[0].unpacked(k), posed),  # type: ignore[attr-defined]
+            "reference_covariance": spread(covariances[1].unpacked(k), posed),  # type: ignore[attr-defined]
+            "moving": moving,
+            "velocity_times": spread(self.velocity_times[v], moving),
+            "twist": spread(self.velocity["twist"][v], moving),
+            "twist_covariance": spread(self.velocity["covariance"].unpacked(v), moving),  # type: ignore[attr-defined]
+        }
 
     def records(
         self, index: list[int], t: list[float], counts: list[list[int]]
@@ -366,6 +394,24 @@ class MeasurementTable(Sequence[FrameMeasurement]):
             yield from block.records(index, t, columns[rows, 2:4].tolist())
         for i in range(sealed, len(self)):  # the open records, as appended
             yield self[i]
+
+    def sealed_blocks(self) -> list[tuple[int, int]]:
+        """(first, stop) positions of each block stored as arrays (the open records follow)."""
+        return [(f, f + block.size) for f, block in zip(self._first, self._blocks, strict=True)]
+
+    def pose_rows(self, first: int, stop: int) -> dict[str, np.ndarray]:
+        """Frames [first, stop) of one sealed block as arrays, no records made: "index",
+        "t" (n,); "posed" (n,) a pose in the usual form (False also where the record is
+        kept as given: keyframe fields, a tilt); "reference" (n,) (-1: none);
+        "rotation" (n, 3, 3), "position" (n, 3), "covariance" and
+        "reference_covariance" (n, 6, 6); "moving" (n,) a twist in the usual form;
+        "velocity_times" (n, 2) its (t, dt); "twist" (n, 6), "twist_covariance" (n, 6, 6)
+        (zeros where absent)."""
+        block = bisect.bisect_right(self._first, first) - 1
+        start = self._first[block]
+        rows = self._blocks[block].pose_rows(first - start, stop - start)
+        rows["index"], rows["t"] = self._sealed_index[first:stop], self._sealed_t[first:stop]
+        return rows
 
     @property
     def has_pose(self) -> np.ndarray:

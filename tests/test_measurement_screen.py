@@ -1,4 +1,4 @@
-"""The smoother's block-wise input checks (measurement_checks.screen_frames).
+"""The smoother's block-wise input checks (measurement_screen.screen_frames).
 
 Reference: the per-frame checks (checked_frame without a screened entry), which
 every frame passed to ``update`` still goes through: a block's frames must come
@@ -15,7 +15,8 @@ import pytest
 from measurement_records import pose_record, velocity_record
 
 from hvo_graph.errors import InputError
-from hvo_graph.estimators.measurement_checks import checked_frame, screen_frames
+from hvo_graph.estimators.measurement_checks import checked_frame
+from hvo_graph.estimators.measurement_screen import screen_frames
 from hvo_graph.estimators.smoother import FactorGraphSmoother
 from hvo_graph.types import FrameMeasurement, PoseMeasurement
 

@@ -9,12 +9,13 @@ import gtsam
 import numpy as np
 import pytest
 
+from hvo_graph import measurement_table
 from hvo_graph.errors import InputError
-from hvo_graph.estimators import measurement_checks
-from hvo_graph.estimators import smoother as smoother_module
+from hvo_graph.estimators import _world_runs, measurement_screen
 from hvo_graph.estimators._world_runs import add_world_run
 from hvo_graph.estimators.smoother import FactorGraphSmoother
 from hvo_graph.frontend import measure_sequence
+from hvo_graph.measurement_table import MeasurementTable
 from hvo_graph.sim.families import draw
 from hvo_graph.types import FrameMeasurement
 
@@ -60,19 +61,36 @@ def equal(a: dict, b: dict) -> None:
 
 
 def offline(frames, monkeypatch, bulk: bool, **options):
-    """(smoother, trajectory, frames added in bulk) of run(frames, online=False)."""
+    """(smoother, trajectory, frames added in bulk) of run(frames, online=False); not
+    ``bulk``: one update per frame."""
     added: list[int] = []
-    real = smoother_module.add_world_run
+    apply = _world_runs._apply
 
-    def counted(*args):
-        n = real(*args) if bulk else 0
-        added.append(n)
-        return n
+    def counted(smoother, run):
+        added.append(apply(smoother, run))
+        return added[-1]
 
-    monkeypatch.setattr(smoother_module, "add_world_run", counted)
+    monkeypatch.setattr(_world_runs, "_apply", counted)
+    if not bulk:
+        monkeypatch.setattr(_world_runs, "add_world_run", lambda *args: 0)
+        frames = list(frames)
     smoother = FactorGraphSmoother(**options)
     trajectory = smoother.run(frames, online=False)
+    monkeypatch.undo()
     return smoother, trajectory, sum(added)
+
+
+def as_container(frames: list, container: str) -> list | MeasurementTable:
+    if container == "list":
+        return frames
+    if container == "table":
+        return MeasurementTable(frames)
+    with pytest.MonkeyPatch.context() as patch:
+        patch.setattr(measurement_table, "BLOCK_FRAMES", 64)
+        table = MeasurementTable()
+        table.extend(frames)  # blocks of 64 frames stored, the rest left open
+    assert 0 < table.sealed_blocks()[-1][1] < len(table)
+    return table
 
 
 def family_frames(family: str, seed: int) -> list[FrameMeasurement]:
@@ -93,8 +111,12 @@ def family_frames(family: str, seed: int) -> list[FrameMeasurement]:
     ids=["default", "no-split", "wnj", "all-twists"],
 )
 @pytest.mark.parametrize("data", ["paper", "traverse", "outliers-dropouts"])
-def test_runs_in_bulk_leave_what_updates_leave(data, options, noisy_run, monkeypatch):
+@pytest.mark.parametrize("container", ["list", "table", "open-table"])
+def test_runs_in_bulk_leave_what_updates_leave(container, data, options, noisy_run, monkeypatch):
+    # A list's runs come from its records; a table's straight from its arrays, block by
+    # block (its open records, not yet stored as arrays, through their records).
     frames = noisy_run[1] if data == "paper" else family_frames(data, 1)
+    frames = as_container(frames, container)
     bulk, bulk_trajectory, added = offline(frames, monkeypatch, True, **options)
     each, each_trajectory, none = offline(frames, monkeypatch, False, **options)
     assert none == 0
@@ -112,23 +134,26 @@ def test_runs_in_bulk_leave_what_updates_leave(data, options, noisy_run, monkeyp
         assert np.array_equal(getattr(bulk_trajectory, field), getattr(each_trajectory, field))
 
 
-def test_a_frame_out_of_order_inside_a_run_fails_as_its_update_does(noisy_run, monkeypatch):
+@pytest.mark.parametrize("container", ["list", "table"])
+def test_a_frame_out_of_order_inside_a_run_fails_as_its_update_does(
+    container, noisy_run, monkeypatch
+):
     frames = list(noisy_run[1][:80])
     frames[50] = dataclasses.replace(frames[50], t=frames[49].t)
     message = (
         rf"^frame 50 \(t={frames[49].t}\) does not follow frame 49 \(t={frames[49].t}\): "
         "frames must arrive in increasing order$"
     )
-    for bulk in (True, False):
-        smoother = FactorGraphSmoother()
-        monkeypatch.setattr(
-            smoother_module,
-            "add_world_run",
-            smoother_module.add_world_run if bulk else (lambda *args: 0),
-        )
-        with pytest.raises(InputError, match=message):
-            smoother.run(frames, online=False)
-        assert smoother._indices == list(range(50))  # the frames before it are in
+    added: list[int] = []
+    apply = _world_runs._apply
+    monkeypatch.setattr(
+        _world_runs, "_apply", lambda *args: added.append(apply(*args)) or added[-1]
+    )
+    smoother = FactorGraphSmoother()
+    with pytest.raises(InputError, match=message):
+        smoother.run(as_container(frames, container), online=False)
+    assert sum(added) == 49  # frames 1-49 in bulk: frame 50 failed in its own update
+    assert smoother._indices == list(range(50))
 
 
 def test_no_bulk_while_streamed_refits_are_due(noisy_run):
@@ -139,6 +164,6 @@ def test_no_bulk_while_streamed_refits_are_due(noisy_run):
     for frame in frames[:10]:
         smoother.update(frame)
     assert smoother.process_noise.refits
-    block, entries = next(measurement_checks.screened(frames[10:], True))
+    block, entries = next(measurement_screen.screened(frames[10:], True))
     assert add_world_run(smoother, block, entries, 0) == 0
     assert len(smoother._indices) == 10

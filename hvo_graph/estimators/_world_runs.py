@@ -25,7 +25,15 @@ import gtsam
 import numpy as np
 from gtsam.symbol_shorthand import A, V, X
 
-from hvo_graph.estimators.measurement_checks import Screened
+from hvo_graph.estimators.measurement_screen import (
+    SCREEN_BLOCK,
+    Screened,
+    screen_frames,
+    screen_pose_numbers,
+    screen_twist_numbers,
+    screened,
+)
+from hvo_graph.measurement_table import MeasurementTable
 from hvo_graph.types import FrameMeasurement, VelocityMeasurement
 
 if TYPE_CHECKING:
@@ -120,16 +128,24 @@ def add_world_run(
     start: int,
 ) -> int:
     """Add the :func:`world_run` from ``start`` on to ``smoother`` as its updates would;
-    its length (0: none, or not yet: before the first frame and the anchor, or while
-    streamed refits of the process noise are due)."""
+    its length (0: none, or not yet: see :func:`_applies`)."""
     s = smoother
-    split = s.shared_reference_noise
-    if not s._indices or s.process_noise.refits or (split and not s._anchored):
+    if not _applies(s):
         return 0
     previous = (s._indices[-1], s._times[-1], s._last_reference)
-    run = world_run(frames, entries, start, previous, split, s.velocity_factors == "gaps")
-    if run is None:
-        return 0
+    gaps = s.velocity_factors == "gaps"
+    run = world_run(frames, entries, start, previous, s.shared_reference_noise, gaps)
+    return 0 if run is None else _apply(s, run)
+
+
+def _applies(s: FactorGraphSmoother) -> bool:
+    """Runs apply from the second frame on, once X(k0) has its anchor (split reference
+    noise), and not while streamed refits of the process noise are due."""
+    anchored = s._anchored or not s.shared_reference_noise
+    return bool(s._indices) and anchored and not s.process_noise.refits
+
+
+def _apply(s: FactorGraphSmoother, run: WorldRun) -> int:
     n, last = len(run.times), int(run.indices[-1])
     poses = np.hstack((run.rotations.reshape(n, 9), run.positions, run.covariances.reshape(n, 36)))
     dts = np.diff(run.times, prepend=s._times[-1])
@@ -143,10 +159,120 @@ def add_world_run(
     s.backend.add(gtsam.NonlinearFactorGraph(), values, last, float(run.times[-1] - s._times[0]))
     s._indices.extend(run.indices.tolist())
     s._times.extend(run.times.tolist())
-    s._reference_cov.extend([_ZERO66 if split else s._reference_cov[-1]] * n)
+    s._reference_cov.extend([_ZERO66 if s.shared_reference_noise else s._reference_cov[-1]] * n)
     s._last_reference, s._pose = 0, values.atPose3(X(last))
     s.velocity_factor_counts["skipped"] += run.twists_skipped
     # The updates' log: each pose relative to X(k0)'s value, which is the identity here.
     twists = np.tile(s._twist, (n, 1))
     s._online.extend(run.indices, run.times, run.rotations, run.positions, twists, None)
     return n
+
+
+def add_table(smoother: FactorGraphSmoother, table: MeasurementTable) -> None:
+    """Every frame of ``table`` into ``smoother``: its runs of world-posed frames from the
+    table's arrays (no records made), every other frame through ``update`` (screened a
+    block at a time), in order."""
+    sealed = 0
+    for first, stop in table.sealed_blocks():
+        for start in range(first, stop, SCREEN_BLOCK):
+            _add_rows(smoother, table, start, min(stop, start + SCREEN_BLOCK))
+        sealed = stop
+    add_records(smoother, table[sealed:], bulk=True)
+
+
+def add_records(
+    smoother: FactorGraphSmoother, frames: Sequence[FrameMeasurement], *, bulk: bool
+) -> None:
+    """Every frame into ``smoother``, screened a block at a time: with ``bulk``, its runs
+    of world-posed frames at once (:func:`add_world_run`), every other frame through
+    ``update``."""
+    for block, entries in screened(frames, smoother.shared_reference_noise):
+        i = 0
+        while i < len(block):
+            added = add_world_run(smoother, block, entries, i) if bulk else 0
+            if not added:
+                smoother._screened = block[i], entries[i]
+                smoother.update(block[i])
+            i += added or 1
+
+
+def _add_rows(s: FactorGraphSmoother, table: MeasurementTable, first: int, stop: int) -> None:
+    rows = table.pose_rows(first, stop)
+    eligible, factor = _eligible(s, rows)
+    need = np.flatnonzero(~eligible)
+    records = {int(i): table[first + int(i)] for i in need}
+    entries = dict(
+        zip(
+            records,
+            screen_frames(list(records.values()), split_reference=s.shared_reference_noise),
+            strict=True,
+        )
+    )
+    i, n = 0, stop - first
+    while i < n:
+        if eligible[i] and _applies(s):
+            j = i + int(np.argmin(np.append(eligible[i:], False)))
+            run = WorldRun(
+                rows["index"][i:j],
+                rows["t"][i:j],
+                rows["rotation"][i:j],
+                rows["position"][i:j],
+                factor[i:j],
+                int(rows["moving"][i:j].sum()),
+            )
+            i += _apply(s, run)
+            continue
+        frame = records.get(i) or table[first + i]
+        entry = (
+            entries[i]
+            if i in entries
+            else screen_frames([frame], split_reference=s.shared_reference_noise)[0]
+        )
+        s._screened = frame, entry
+        s.update(frame)
+        i += 1
+
+
+def _eligible(s: FactorGraphSmoother, rows: dict[str, np.ndarray]) -> tuple[np.ndarray, np.ndarray]:
+    """((n,) whether each row may be added in a run, (n, 6, 6) its pose factor covariance):
+    :func:`world_run`'s tests on arrays; the previous frame of each row is the row before
+    (it is added before it, either way), of the first the smoother's latest."""
+    split, posed, moving = s.shared_reference_noise, rows["posed"], rows["moving"]
+    with np.errstate(all="ignore"):  # NaN or inf: the frame is not eligible
+        ok, factor, _, _ = screen_pose_numbers(
+            rows["rotation"],
+            rows["position"],
+            rows["covariance"],
+            posed & split,
+            lambda r: rows["reference_covariance"][r],
+            split,
+        )
+        twist_ok, _ = screen_twist_numbers(rows["twist"], rows["twist_covariance"])
+        index, t = rows["index"], rows["t"]
+        last = (
+            (s._indices[-1], s._times[-1], s._last_reference) if s._indices else (-1, np.inf, None)
+        )
+        prev_index = np.append(last[0], index[:-1])
+        prev_t = np.append(last[1], t[:-1])
+        prev_ref = np.append(-1 if last[2] is None else last[2], rows["reference"][:-1])
+        vt, vdt = rows["velocity_times"].T
+        start, end = vt - 0.5 * vdt, vt + 0.5 * vdt
+        tol = 1e-9 * np.maximum(1.0, np.abs(t))
+        usual = (
+            np.isfinite(vt)
+            & np.isfinite(vdt)
+            & (vdt >= 0)
+            & (np.abs(start - prev_t) <= tol)
+            & (np.abs(end - t) <= tol)
+        )
+        spanned = (s.velocity_factors == "gaps") & (prev_ref == 0) & usual & twist_ok
+        eligible = (
+            posed
+            & ok
+            & (rows["reference"] == 0)
+            & (index > prev_index)
+            & (t > prev_t)
+            & np.isfinite(t)
+            & (~moving | spanned)
+        )
+    return eligible, factor

@@ -43,7 +43,7 @@ from gtsam.symbol_shorthand import A, V, X
 
 from hvo_graph.errors import InputError, as_choice, as_integer, as_number
 from hvo_graph.estimators import measurement_checks
-from hvo_graph.estimators._world_runs import add_world_run
+from hvo_graph.estimators._world_runs import add_records, add_table
 from hvo_graph.estimators.base import Estimator
 from hvo_graph.estimators.choices import (
     ANCHOR_START_SIGMA,
@@ -63,7 +63,8 @@ from hvo_graph.estimators.factors import (
     measurement_noise,
     tilt_factor,
 )
-from hvo_graph.estimators.measurement_checks import CheckedFrame, Screened, poses_span
+from hvo_graph.estimators.measurement_checks import CheckedFrame, poses_span
+from hvo_graph.estimators.measurement_screen import Screened
 from hvo_graph.estimators.motion_model import MotionFactors, check_motion_model, twist_keys
 from hvo_graph.estimators.noise_estimation import ProcessNoiseSchedule
 from hvo_graph.estimators.process_noise import DEFAULT_ACCELERATION_SIGMA
@@ -74,6 +75,7 @@ from hvo_graph.estimators.solvers import (
     make_backend,
 )
 from hvo_graph.estimators.state_log import SortedIndices
+from hvo_graph.measurement_table import MeasurementTable
 from hvo_graph.types import FrameMeasurement, PoseMeasurement, StateEstimate, Trajectory
 
 __all__ = [
@@ -247,16 +249,12 @@ class FactorGraphSmoother(Estimator):
             self.acceleration_sigma = self.process_noise.sigma
             # Only ISAM2 can skip its window: the fixed-lag smoother is its window.
             self.backend.windowed = online or self.robust is not None or self.solver != "isam2"
-        # Offline, frames posed against the world need no update of their own (world_runs).
+        # Offline, frames posed against the world need no update of their own (_world_runs).
         bulk = not self.backend.windowed and self.record is None
-        for block, entries in measurement_checks.screened(frames, self.shared_reference_noise):
-            i = 0
-            while i < len(block):
-                added = add_world_run(self, block, entries, i) if bulk else 0
-                if not added:
-                    self._screened = block[i], entries[i]
-                    self.update(block[i])
-                i += added or 1
+        if bulk and isinstance(frames, MeasurementTable):  # its runs straight from its arrays
+            add_table(self, frames)
+        else:
+            add_records(self, frames, bulk=bulk)
         return self.trajectory()
 
     def _checked_frame(self, frame: FrameMeasurement) -> CheckedFrame:
