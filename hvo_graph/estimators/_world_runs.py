@@ -197,17 +197,14 @@ def add_records(
 
 
 def _add_rows(s: FactorGraphSmoother, table: MeasurementTable, first: int, stop: int) -> None:
+    """Frames [first, stop) of one stored block of ``table``, in order: runs of eligible
+    rows at once, every other frame's record through ``update``."""
     rows = table.pose_rows(first, stop)
     eligible, factor = _eligible(s, rows)
-    need = np.flatnonzero(~eligible)
-    records = {int(i): table[first + int(i)] for i in need}
-    entries = dict(
-        zip(
-            records,
-            screen_frames(list(records.values()), split_reference=s.shared_reference_noise),
-            strict=True,
-        )
-    )
+    split = s.shared_reference_noise
+    records = {i: table[first + i] for i in np.flatnonzero(~eligible).tolist()}
+    screens = screen_frames(list(records.values()), split_reference=split)
+    entries = dict(zip(records, screens, strict=True))
     i, n = 0, stop - first
     while i < n:
         if eligible[i] and _applies(s):
@@ -222,13 +219,11 @@ def _add_rows(s: FactorGraphSmoother, table: MeasurementTable, first: int, stop:
             )
             i += _apply(s, run)
             continue
-        frame = records.get(i) or table[first + i]
-        entry = (
-            entries[i]
-            if i in entries
-            else screen_frames([frame], split_reference=s.shared_reference_noise)[0]
-        )
-        s._screened = frame, entry
+        if i not in records:  # eligible, but the smoother is not ready for runs yet
+            records[i] = table[first + i]
+            entries[i] = screen_frames([records[i]], split_reference=split)[0]
+        frame = records[i]
+        s._screened = frame, entries[i]
         s.update(frame)
         i += 1
 
