@@ -1053,8 +1053,10 @@ def reference_sections(args: argparse.Namespace) -> list[tuple[str, str]]:
                 f"output file; the smoother and the fixed-lag smoother also on {long:,} frames "
                 "(their peak memory over a long sequence). Without `--online` the default "
                 "smoother runs no online window: its final solve starts from the measurements "
-                "(`FactorGraphSmoother.run(frames, online=False)`, the same optimum); the "
-                "per-update rows above time it with the window, as a streaming user runs it.",
+                "(`FactorGraphSmoother.run(frames, online=False)`, the same optimum), and its "
+                "frames posed against the world go to the factor store in runs read from the "
+                "measurement table's arrays; the per-update rows above time it with the "
+                "window, one update per frame, as a streaming user runs it.",
                 refs.cli_section(runs),
             ]
         )
