@@ -11,8 +11,7 @@ import pytest
 
 from hvo_graph import measurement_table
 from hvo_graph.errors import InputError
-from hvo_graph.estimators import _world_runs, measurement_screen
-from hvo_graph.estimators._world_runs import add_world_run
+from hvo_graph.estimators import _world_runs
 from hvo_graph.estimators.smoother import FactorGraphSmoother
 from hvo_graph.frontend import measure_sequence
 from hvo_graph.measurement_table import MeasurementTable
@@ -72,7 +71,13 @@ def offline(frames, monkeypatch, bulk: bool, **options):
 
     monkeypatch.setattr(_world_runs, "_apply", counted)
     if not bulk:
-        monkeypatch.setattr(_world_runs, "add_world_run", lambda *args: 0)
+        real = _world_runs._eligible
+
+        def none_eligible(smoother, rows):
+            eligible, factor = real(smoother, rows)
+            return np.zeros_like(eligible), factor
+
+        monkeypatch.setattr(_world_runs, "_eligible", none_eligible)
         frames = list(frames)
     smoother = FactorGraphSmoother(**options)
     trajectory = smoother.run(frames, online=False)
@@ -134,14 +139,18 @@ def test_runs_in_bulk_leave_what_updates_leave(container, data, options, noisy_r
         assert np.array_equal(getattr(bulk_trajectory, field), getattr(each_trajectory, field))
 
 
+@pytest.mark.parametrize("field", ["t", "index"])
 @pytest.mark.parametrize("container", ["list", "table"])
 def test_a_frame_out_of_order_inside_a_run_fails_as_its_update_does(
-    container, noisy_run, monkeypatch
+    container, field, noisy_run, monkeypatch
 ):
     frames = list(noisy_run[1][:80])
-    frames[50] = dataclasses.replace(frames[50], t=frames[49].t)
+    # Without its twist: only the time (or the index) tells that it is out of order.
+    late = {"t": frames[49].t} if field == "t" else {"index": 49}
+    frames[50] = dataclasses.replace(frames[50], velocity=None, **late)
+    k, t = frames[50].index, frames[50].t
     message = (
-        rf"^frame 50 \(t={frames[49].t}\) does not follow frame 49 \(t={frames[49].t}\): "
+        rf"^frame {k} \(t={t}\) does not follow frame 49 \(t={frames[49].t}\): "
         "frames must arrive in increasing order$"
     )
     added: list[int] = []
@@ -158,12 +167,23 @@ def test_a_frame_out_of_order_inside_a_run_fails_as_its_update_does(
 
 def test_no_bulk_while_streamed_refits_are_due(noisy_run):
     # Frames streamed first ("auto": refits after 30, 60, ... frames) refit on what comes
-    # next, frame by frame: a run of them is not added in bulk.
-    frames = noisy_run[1][:60]
-    smoother = FactorGraphSmoother()
-    for frame in frames[:10]:
-        smoother.update(frame)
-    assert smoother.process_noise.refits
-    block, entries = next(measurement_screen.screened(frames[10:], True))
-    assert add_world_run(smoother, block, entries, 0) == 0
-    assert len(smoother._indices) == 10
+    # next, frame by frame: the smoother takes no runs then; with fixed values it does.
+    for sigma, takes_runs in (("auto", False), ((0.05, 0.05), True)):
+        smoother = FactorGraphSmoother(acceleration_sigma=sigma)
+        for frame in noisy_run[1][:10]:
+            smoother.update(frame)
+        assert smoother.process_noise.refits is not takes_runs
+        assert _world_runs._applies(smoother) is takes_runs
+
+
+def test_records_of_other_types_take_their_own_update(noisy_run, monkeypatch):
+    # A time that is a numpy float, an index that is a numpy int: the update converts
+    # them; a run does not take them (nor the frame after, judged against them).
+    frames = list(noisy_run[1][:60])
+    frames[20] = dataclasses.replace(frames[20], t=np.float64(frames[20].t))
+    frames[40] = dataclasses.replace(frames[40], index=np.int64(40))
+    bulk, bulk_trajectory, added = offline(frames, monkeypatch, True)
+    each, each_trajectory, _ = offline(frames, monkeypatch, False)
+    assert added == len(frames) - 1 - 4  # the first frame, 20, 21, 40 and 41 one by one
+    equal(state(bulk), state(each))
+    assert np.array_equal(bulk_trajectory.positions, each_trajectory.positions)

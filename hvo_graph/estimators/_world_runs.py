@@ -6,18 +6,18 @@ window, no robust loss, no covariances) every factor goes to the back end's
 the same things: the H_d pose prior against the world with the frame's own-pixel
 covariance, the motion factor from the previous frame, and initial values (the
 measured pose, the twist carried over), their H_c twist left out because two H_d poses
-against the world already span its interval. :func:`add_world_run` adds a run of such
-frames with a few array operations instead of an update per frame: the same store,
-initial values and bookkeeping as those updates (tests/test_world_runs.py). Every other
-frame (the first, a keyframe pose, a twist factor to add, a tilt, numbers the screening
-did not pass, a frame out of order) goes through ``update``, which checks it and raises
-exactly as always.
+against the world already span its interval. Such frames are found with array tests on
+a block of frames (:func:`_eligible`: a measurement table's arrays, or a list's records
+stacked) and each run of them is added with a few array operations: the same store,
+initial values and bookkeeping as one update per frame (tests/test_world_runs.py).
+Every other frame (the first, a keyframe pose, a twist factor to add, a tilt, numbers
+the screening does not pass, a frame out of order or of another type) goes through
+``update``, which checks it and raises exactly as always.
 """
 
 from __future__ import annotations
 
-import math
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from typing import TYPE_CHECKING
 
@@ -28,13 +28,14 @@ from gtsam.symbol_shorthand import A, V, X
 from hvo_graph.estimators.measurement_screen import (
     SCREEN_BLOCK,
     Screened,
+    plain_frame,
     screen_frames,
     screen_pose_numbers,
     screen_twist_numbers,
     screened,
 )
 from hvo_graph.measurement_table import MeasurementTable
-from hvo_graph.types import FrameMeasurement, VelocityMeasurement
+from hvo_graph.types import FrameMeasurement
 
 if TYPE_CHECKING:
     from hvo_graph.estimators.smoother import FactorGraphSmoother
@@ -58,84 +59,115 @@ class WorldRun:
     twists_skipped: int
 
 
-def _usual_interval(velocity: VelocityMeasurement, previous_time: float, t: float) -> bool:
-    """Whether the twist is over [t_previous, t] (to the tolerance of
-    :func:`~.measurement_checks.twist_nodes`), with a valid time and interval."""
-    if not (math.isfinite(velocity.t) and math.isfinite(velocity.dt) and velocity.dt >= 0):
-        return False
-    tol = 1e-9 * max(1.0, abs(t))
-    start, end = velocity.t - 0.5 * velocity.dt, velocity.t + 0.5 * velocity.dt
-    return abs(start - previous_time) <= tol and abs(end - t) <= tol
+def add_table(smoother: FactorGraphSmoother, table: MeasurementTable) -> None:
+    """Every frame of ``table`` into ``smoother``, in order: runs of world-posed frames
+    straight from the table's arrays (no records made), every other frame's record
+    through ``update``; the open records (not stored as arrays yet) as a list's."""
+    sealed = 0
+    for first, stop in table.sealed_blocks():
+        for a in range(first, stop, SCREEN_BLOCK):
+            b = min(stop, a + SCREEN_BLOCK)
+            _add_rows(smoother, table.pose_rows(a, b), lambda i, a=a: table[a + i])
+        sealed = stop
+    add_records(smoother, table[sealed:], bulk=True)
 
 
-def world_run(
-    frames: Sequence[FrameMeasurement],
-    entries: Sequence[Screened | None],
-    start: int,
-    previous: tuple[int, float, int | None],
-    split_reference: bool,
-    skip_spanned: bool,
-) -> WorldRun | None:
-    """The frames from ``start`` on that need no update of their own (None: not one).
+def add_records(
+    smoother: FactorGraphSmoother, frames: Sequence[FrameMeasurement], *, bulk: bool
+) -> None:
+    """Every frame into ``smoother``, in order, screened a block at a time: with ``bulk``,
+    its runs of world-posed frames at once, every other frame through ``update``."""
+    split = smoother.shared_reference_noise
+    for block, entries in screened(frames, split):
+        if bulk:
+            _add_rows(smoother, _record_rows(block, split), block.__getitem__, entries)
+            continue
+        for frame, entry in zip(block, entries, strict=True):
+            smoother._screened = frame, entry
+            smoother.update(frame)
 
-    Args:
-        frames, entries: a block of frames and their screening entries.
-        previous: (index, time, pose reference or None) of the frame before ``start``.
-        split_reference: ``shared_reference_noise`` (each pose's reference share apart).
-        skip_spanned: the "gaps" twist policy (else every twist is a factor: a frame
-            with one needs its update).
-    """
-    index, time, reference = previous
-    stop, skipped = start, 0
-    for frame, entry in zip(frames[start:], entries[start:], strict=True):
-        pose, velocity, t = frame.pose, frame.velocity, frame.t
-        if (
-            entry is None
-            or pose is None
-            or frame.keyframe_tilt is not None
-            or type(frame.index) is not int
-            or frame.index <= index
-            or type(t) is not float
-            or not (t > time and math.isfinite(t))
-            or type(pose.reference) is not int
-            or pose.reference != 0
-            or (split_reference and entry[1] is None)
-        ):
-            break
-        if velocity is not None:
-            if not (skip_spanned and reference == 0 and _usual_interval(velocity, time, t)):
-                break
-            skipped += 1
-        index, time, reference = frame.index, t, 0
-        stop += 1
-    if stop == start:
-        return None
-    run = frames[start:stop]
-    return WorldRun(
-        indices=np.array([f.index for f in run], dtype=np.int64),
-        times=np.array([f.t for f in run]),
-        rotations=np.array([f.pose.rotation for f in run]),  # type: ignore[union-attr]
-        positions=np.array([f.pose.position for f in run]),  # type: ignore[union-attr]
-        covariances=np.array([entry[0] for entry in entries[start:stop]]),  # type: ignore[index]
-        twists_skipped=skipped,
+
+def _add_rows(
+    s: FactorGraphSmoother,
+    rows: dict[str, np.ndarray],
+    record: Callable[[int], FrameMeasurement],
+    entries: Sequence[Screened | None] | None = None,
+) -> None:
+    """The frames of ``rows`` in order: each run of eligible rows at once (once the
+    smoother takes runs), every other frame (``record(i)``) through ``update`` with its
+    screening entry (``entries``, else screened here, the ineligible ones together)."""
+    eligible, factor = _eligible(s, rows)
+    split, n = s.shared_reference_noise, len(eligible)
+    made: dict[int, FrameMeasurement] = {}
+    screens: dict[int, Screened | None] = {} if entries is None else dict(enumerate(entries))
+    if entries is None:
+        made = {i: record(i) for i in np.flatnonzero(~eligible).tolist()}
+        screened_made = screen_frames(list(made.values()), split_reference=split)
+        screens = dict(zip(made, screened_made, strict=True))
+    i = 0
+    while i < n:
+        if eligible[i] and _applies(s):
+            j = i + int(np.argmin(np.append(eligible[i:], False)))  # the first ineligible
+            run = WorldRun(
+                rows["index"][i:j].astype(np.int64),
+                rows["t"][i:j],
+                rows["rotation"][i:j],
+                rows["position"][i:j],
+                factor[i:j],
+                int(rows["moving"][i:j].sum()),
+            )
+            i += _apply(s, run)
+            continue
+        frame = made[i] if i in made else record(i)
+        if i not in screens:  # eligible, but the smoother takes no runs yet
+            screens[i] = screen_frames([frame], split_reference=split)[0]
+        s._screened = frame, screens[i]
+        s.update(frame)
+        i += 1
+
+
+def _record_rows(frames: Sequence[FrameMeasurement], split: bool) -> dict[str, np.ndarray]:
+    """A block of records as :meth:`MeasurementTable.pose_rows` gives a table's: "posed"
+    only where the frame has the form a table stores as arrays (int index, float time,
+    no tilt, a pose with an int reference, float64 arrays; its reference share, split)."""
+    n = len(frames)
+    posed = np.array(
+        [
+            type(f.index) is int
+            and type(f.t) is float
+            and f.keyframe_tilt is None
+            and f.pose is not None
+            and type(f.pose.reference) is int
+            and (not split or f.pose.reference_covariance is not None)
+            and plain_frame(f, split)
+            for f in frames
+        ],
+        dtype=bool,
     )
+    rows: dict[str, np.ndarray] = {"posed": posed}
+    try:  # the numbers of every frame: a later frame is judged against its predecessor
+        rows["index"] = np.array([f.index for f in frames], dtype=float)
+        rows["t"] = np.array([f.t for f in frames], dtype=float)
+    except (TypeError, ValueError):  # not numbers: every frame its own update
+        rows["index"], rows["t"] = np.full(n, np.nan), np.full(n, np.nan)
+        rows["posed"] = np.zeros(n, dtype=bool)
+    poses = [f.pose if p else None for f, p in zip(frames, posed, strict=True)]
+    moving = posed & np.array([f.velocity is not None for f in frames], dtype=bool)
+    velocities = [f.velocity if m else None for f, m in zip(frames, moving, strict=True)]
 
+    def stack(values: list, shape: tuple[int, ...], fill: float = 0.0) -> np.ndarray:
+        return np.array([np.full(shape, fill) if v is None else v for v in values], dtype=float)
 
-def add_world_run(
-    smoother: FactorGraphSmoother,
-    frames: Sequence[FrameMeasurement],
-    entries: Sequence[Screened | None],
-    start: int,
-) -> int:
-    """Add the :func:`world_run` from ``start`` on to ``smoother`` as its updates would;
-    its length (0: none, or not yet: see :func:`_applies`)."""
-    s = smoother
-    if not _applies(s):
-        return 0
-    previous = (s._indices[-1], s._times[-1], s._last_reference)
-    gaps = s.velocity_factors == "gaps"
-    run = world_run(frames, entries, start, previous, s.shared_reference_noise, gaps)
-    return 0 if run is None else _apply(s, run)
+    rows["reference"] = np.array([-1 if p is None else p.reference for p in poses])
+    rows["rotation"] = stack([p and p.rotation for p in poses], (3, 3))
+    rows["position"] = stack([p and p.position for p in poses], (3,))
+    rows["covariance"] = stack([p and p.covariance for p in poses], (6, 6))
+    rows["reference_covariance"] = stack([p and p.reference_covariance for p in poses], (6, 6))
+    rows["moving"] = moving
+    rows["velocity_times"] = stack([v and (v.t, v.dt) for v in velocities], (2,))
+    rows["twist"] = stack([v and v.twist for v in velocities], (6,))
+    rows["twist_covariance"] = stack([v and v.covariance for v in velocities], (6, 6))
+    return rows
 
 
 def _applies(s: FactorGraphSmoother) -> bool:
@@ -166,66 +198,6 @@ def _apply(s: FactorGraphSmoother, run: WorldRun) -> int:
     twists = np.tile(s._twist, (n, 1))
     s._online.extend(run.indices, run.times, run.rotations, run.positions, twists, None)
     return n
-
-
-def add_table(smoother: FactorGraphSmoother, table: MeasurementTable) -> None:
-    """Every frame of ``table`` into ``smoother``: its runs of world-posed frames from the
-    table's arrays (no records made), every other frame through ``update`` (screened a
-    block at a time), in order."""
-    sealed = 0
-    for first, stop in table.sealed_blocks():
-        for start in range(first, stop, SCREEN_BLOCK):
-            _add_rows(smoother, table, start, min(stop, start + SCREEN_BLOCK))
-        sealed = stop
-    add_records(smoother, table[sealed:], bulk=True)
-
-
-def add_records(
-    smoother: FactorGraphSmoother, frames: Sequence[FrameMeasurement], *, bulk: bool
-) -> None:
-    """Every frame into ``smoother``, screened a block at a time: with ``bulk``, its runs
-    of world-posed frames at once (:func:`add_world_run`), every other frame through
-    ``update``."""
-    for block, entries in screened(frames, smoother.shared_reference_noise):
-        i = 0
-        while i < len(block):
-            added = add_world_run(smoother, block, entries, i) if bulk else 0
-            if not added:
-                smoother._screened = block[i], entries[i]
-                smoother.update(block[i])
-            i += added or 1
-
-
-def _add_rows(s: FactorGraphSmoother, table: MeasurementTable, first: int, stop: int) -> None:
-    """Frames [first, stop) of one stored block of ``table``, in order: runs of eligible
-    rows at once, every other frame's record through ``update``."""
-    rows = table.pose_rows(first, stop)
-    eligible, factor = _eligible(s, rows)
-    split = s.shared_reference_noise
-    records = {i: table[first + i] for i in np.flatnonzero(~eligible).tolist()}
-    screens = screen_frames(list(records.values()), split_reference=split)
-    entries = dict(zip(records, screens, strict=True))
-    i, n = 0, stop - first
-    while i < n:
-        if eligible[i] and _applies(s):
-            j = i + int(np.argmin(np.append(eligible[i:], False)))
-            run = WorldRun(
-                rows["index"][i:j],
-                rows["t"][i:j],
-                rows["rotation"][i:j],
-                rows["position"][i:j],
-                factor[i:j],
-                int(rows["moving"][i:j].sum()),
-            )
-            i += _apply(s, run)
-            continue
-        if i not in records:  # eligible, but the smoother is not ready for runs yet
-            records[i] = table[first + i]
-            entries[i] = screen_frames([records[i]], split_reference=split)[0]
-        frame = records[i]
-        s._screened = frame, entries[i]
-        s.update(frame)
-        i += 1
 
 
 def _eligible(s: FactorGraphSmoother, rows: dict[str, np.ndarray]) -> tuple[np.ndarray, np.ndarray]:

@@ -38,7 +38,7 @@ def _is_array(value: object, shape: tuple[int, ...]) -> bool:
     return type(value) is np.ndarray and value.dtype == np.float64 and value.shape == shape  # type: ignore[union-attr]
 
 
-def _plain_frame(frame: FrameMeasurement, split: bool) -> bool:
+def plain_frame(frame: FrameMeasurement, split: bool) -> bool:
     """Whether the frame's numbers have the usual form (float64 arrays of their shapes)."""
     pose, velocity = frame.pose, frame.velocity
     if pose is not None and not (
@@ -160,7 +160,7 @@ def screen_frames(
 
 def _screen(frames: Sequence[FrameMeasurement], split_reference: bool) -> list[Screened | None]:
     out: list[Screened | None] = [None] * len(frames)
-    plain = [i for i, f in enumerate(frames) if _plain_frame(f, split_reference)]
+    plain = [i for i, f in enumerate(frames) if plain_frame(f, split_reference)]
     posed = [i for i in plain if frames[i].pose is not None]
     moving = [i for i in plain if frames[i].velocity is not None]
     passed = dict.fromkeys(plain, True)
