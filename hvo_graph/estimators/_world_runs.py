@@ -75,35 +75,32 @@ def add_table(smoother: FactorGraphSmoother, table: MeasurementTable) -> None:
 def add_records(
     smoother: FactorGraphSmoother, frames: Sequence[FrameMeasurement], *, bulk: bool
 ) -> None:
-    """Every frame into ``smoother``, in order, screened a block at a time: with ``bulk``,
-    its runs of world-posed frames at once, every other frame through ``update``."""
+    """Every frame into ``smoother``, in order, a block at a time: with ``bulk``, its runs
+    of world-posed frames at once (the other frames screened together), else every frame
+    screened and through ``update``."""
     split = smoother.shared_reference_noise
+    if bulk:
+        for a in range(0, len(frames), SCREEN_BLOCK):
+            block = list(frames[a : a + SCREEN_BLOCK])
+            _add_rows(smoother, _record_rows(block, split), block.__getitem__)
+        return
     for block, entries in screened(frames, split):
-        if bulk:
-            _add_rows(smoother, _record_rows(block, split), block.__getitem__, entries)
-            continue
         for frame, entry in zip(block, entries, strict=True):
             smoother._screened = frame, entry
             smoother.update(frame)
 
 
 def _add_rows(
-    s: FactorGraphSmoother,
-    rows: dict[str, np.ndarray],
-    record: Callable[[int], FrameMeasurement],
-    entries: Sequence[Screened | None] | None = None,
+    s: FactorGraphSmoother, rows: dict[str, np.ndarray], record: Callable[[int], FrameMeasurement]
 ) -> None:
     """The frames of ``rows`` in order: each run of eligible rows at once (once the
     smoother takes runs), every other frame (``record(i)``) through ``update`` with its
-    screening entry (``entries``, else screened here, the ineligible ones together)."""
+    screening entry (the ineligible frames screened together)."""
     eligible, factor = _eligible(s, rows)
     split, n = s.shared_reference_noise, len(eligible)
-    made: dict[int, FrameMeasurement] = {}
-    screens: dict[int, Screened | None] = {} if entries is None else dict(enumerate(entries))
-    if entries is None:
-        made = {i: record(i) for i in np.flatnonzero(~eligible).tolist()}
-        screened_made = screen_frames(list(made.values()), split_reference=split)
-        screens = dict(zip(made, screened_made, strict=True))
+    made = {i: record(i) for i in np.flatnonzero(~eligible).tolist()}
+    screened_made = screen_frames(list(made.values()), split_reference=split)
+    screens: dict[int, Screened | None] = dict(zip(made, screened_made, strict=True))
     i = 0
     while i < n:
         if eligible[i] and _applies(s):
