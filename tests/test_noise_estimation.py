@@ -172,6 +172,30 @@ def test_the_lockstep_filter_equals_the_textbook_one_pair_by_pair(likelihood, or
     assert np.all(ungated < got - 100.0)  # the outlier's density, no longer capped at the gate
 
 
+@pytest.mark.parametrize("likelihood", [log_likelihood, jerk_log_likelihood])
+def test_stretches_filtered_side_by_side_give_each_stretch_its_own_likelihood(likelihood):
+    """Three stretches of equal length, their steps the same at some frames and not at
+    others (one dt for all, or each its own): every stretch's likelihoods as when filtered
+    alone, to the last bit, and the textbook filter's."""
+    rng = np.random.default_rng(7)
+    K = 30
+    t = np.cumsum(rng.choice([1 / 30, 2 / 30], size=(3, K)), axis=1)
+    t[:, :10] = np.arange(10) / 30  # the first steps the same in every stretch
+    s = np.cumsum(rng.normal(scale=0.01, size=(3, K, 6)), axis=1)
+    s[1, 12] += 0.5  # one gated outlier in one stretch
+    A = rng.normal(size=(3, K, 6, 6))
+    C = 1e-6 * (A @ A.transpose(0, 1, 3, 2) + np.eye(6))
+    q_w, q_v = np.array([1e-3, 0.5, 20.0]), np.array([2.0, 1e-2, 0.3])
+    together = likelihood(t, s, C, q_w, q_v, OUTLIER_GATE)
+    assert together.shape == (3, 3)
+    for i in range(3):
+        alone = likelihood(t[i], s[i], C[i], q_w, q_v, OUTLIER_GATE)
+        assert np.array_equal(together[i], alone)
+    order = 2 if likelihood is log_likelihood else 3
+    expected = textbook_log_likelihood(t[1], s[1], C[1], 0.5, 1e-2, OUTLIER_GATE, order)
+    np.testing.assert_allclose(together[1, 1], expected, rtol=1e-9)
+
+
 def test_a_filter_fits_below_the_bound_only_where_the_data_put_it():
     """A rotation 100x gentler than the bound: the smoother's fit stops at the bound, the
     filter's goes on down to the density of the motion; a density above the bound is
