@@ -21,7 +21,8 @@ from hvo_graph.types import FrameMeasurement
 
 def state(smoother: FactorGraphSmoother) -> dict:
     """Everything a run leaves behind that the final solve or a later update reads."""
-    store, initial, log = smoother.backend.store, smoother.backend.initial, smoother._online
+    store, log = smoother.backend.store, smoother._online
+    initial = getattr(smoother.backend, "initial", gtsam.Values())  # none: fixed-lag
     return {
         "index": store._index.view().copy(),
         "motion": store._motion.view().copy(),
@@ -187,3 +188,54 @@ def test_records_of_other_types_take_their_own_update(noisy_run, monkeypatch):
     assert added == len(frames) - 1 - 4  # the first frame, 20, 21, 40 and 41 one by one
     equal(state(bulk), state(each))
     assert np.array_equal(bulk_trajectory.positions, each_trajectory.positions)
+
+
+def windowed_run(frames, monkeypatch, bulk: bool, online: bool, **options):
+    """(smoother, trajectory, frames added in runs) of run(frames, online=online) with a
+    back end that updates per frame; not ``bulk``: no runs (every frame screened, checked
+    and updated on its own)."""
+    added: list[int] = []
+    update_each = _world_runs._update_each
+    monkeypatch.setattr(
+        _world_runs, "_update_each", lambda *args: added.append(update_each(*args)) or added[-1]
+    )
+    if not bulk:
+        monkeypatch.setattr(_world_runs, "_applies", lambda smoother: False)
+    smoother = FactorGraphSmoother(**options)
+    trajectory = smoother.run(frames, online=online)
+    monkeypatch.undo()
+    return smoother, trajectory, sum(added)
+
+
+@pytest.mark.parametrize(
+    ("solver", "online", "options"),
+    [
+        ("fixed-lag", False, {}),
+        ("fixed-lag", False, {"motion_model": "wnj", "acceleration_sigma": (0.1, 0.1)}),
+        ("fixed-lag", False, {"shared_reference_noise": False}),
+        ("isam2", True, {}),
+        ("batch", False, {}),
+    ],
+    ids=["fixed-lag", "fixed-lag-wnj", "fixed-lag-no-split", "isam2-online", "batch"],
+)
+@pytest.mark.parametrize("data", ["paper", "traverse", "outliers-dropouts"])
+@pytest.mark.parametrize("container", ["list", "table"])
+def test_windowed_runs_update_each_frame_as_its_own_update_does(
+    container, data, solver, online, options, noisy_run, monkeypatch
+):
+    # Runs of world-posed frames go to a windowed back end one update each, built without
+    # the per-frame checks: the online log, the trajectory and what the next frame reads
+    # equal those of one checked update per frame.
+    frames = noisy_run[1] if data == "paper" else family_frames(data, 1)
+    frames = as_container(frames, container)
+    options = {"solver": solver, **options}
+    runs, runs_trajectory, added = windowed_run(frames, monkeypatch, True, online, **options)
+    each, each_trajectory, none = windowed_run(frames, monkeypatch, False, online, **options)
+    assert none == 0
+    if data == "traverse":
+        assert 0 < added < len(frames) - 1
+    else:
+        assert added == len(frames) - 1
+    equal(state(runs), state(each))
+    for field in ("t", "rotations", "positions", "twists"):
+        assert np.array_equal(getattr(runs_trajectory, field), getattr(each_trajectory, field))

@@ -175,6 +175,8 @@ def _applies(s: FactorGraphSmoother) -> bool:
 
 
 def _apply(s: FactorGraphSmoother, run: WorldRun) -> int:
+    if s.backend.windowed:
+        return _update_each(s, run)
     n, last = len(run.times), int(run.indices[-1])
     poses = np.hstack((run.rotations.reshape(n, 9), run.positions, run.covariances.reshape(n, 36)))
     dts = np.diff(run.times, prepend=s._times[-1])
@@ -194,6 +196,45 @@ def _apply(s: FactorGraphSmoother, run: WorldRun) -> int:
     # The updates' log: each pose relative to X(k0)'s value, which is the identity here.
     twists = np.tile(s._twist, (n, 1))
     s._online.extend(run.indices, run.times, run.rotations, run.positions, twists, None)
+    return n
+
+
+def _update_each(s: FactorGraphSmoother, run: WorldRun) -> int:
+    """A back end that updates per frame (a window: fixed-lag, online ISAM2; batch): each
+    frame's motion factor, pose prior and initial values as its update makes them, in the
+    same order, without the update's checks (the screening passed) and records."""
+    n, split, store = len(run.times), s.shared_reference_noise, s.backend.store
+    rotations, positions, twists = np.empty((n, 3, 3)), np.empty((n, 3)), np.empty((n, 6))
+    first, t0, model, sigma = s._indices[0], s._times[0], s.motion_model, s.acceleration_sigma
+    frames = zip(
+        run.indices.tolist(), run.times.tolist(), run.rotations, run.positions, strict=True
+    )
+    for i, (k, t, R, p) in enumerate(frames):
+        dt = t - s._times[-1]
+        graph = gtsam.NonlinearFactorGraph()
+        store.add_frame(k)
+        for factor in s._motion(model, s._indices[-1], k, dt, sigma):
+            graph.add(factor)
+        store.add_motion(dt, sigma, model)
+        s._indices.append(k)
+        s._times.append(t)
+        measured = gtsam.Pose3(gtsam.Rot3(R), p)
+        graph.add(gtsam.PriorFactorPose3(X(k), measured, s._pose_noise(run.covariances[i])))
+        store.add_pose_prior(measured, run.covariances[i])
+        values = gtsam.Values()
+        values.insert(X(k), measured)
+        values.insert(V(k), s._twist)
+        if model == "wnj":
+            values.insert(A(k), _ZERO6)
+        s._pose, twist, _ = s.backend.add(graph, values, k, t - t0)
+        s._twist = twists[i] = twist
+        relative = s._relative(s._pose, s.backend.current_pose(first))
+        rotations[i] = relative.rotation().matrix()
+        positions[i] = relative.translation()
+    s._reference_cov.extend([_ZERO66 if split else s._reference_cov[-1]] * n)
+    s._last_reference, s._world_posed = 0, True
+    s.velocity_factor_counts["skipped"] += run.twists_skipped
+    s._online.extend(run.indices, run.times, rotations, positions, twists, None)
     return n
 
 

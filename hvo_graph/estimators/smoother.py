@@ -249,8 +249,9 @@ class FactorGraphSmoother(Estimator):
             self.acceleration_sigma = self.process_noise.sigma
             # Only ISAM2 can skip its window: the fixed-lag smoother is its window.
             self.backend.windowed = online or self.robust is not None or self.solver != "isam2"
-        # Offline, frames posed against the world need no update of their own (_world_runs).
-        bulk = not self.backend.windowed and self.record is None
+        # Frames posed against the world: offline, no update of their own; else an update
+        # without the per-frame checks (_world_runs).
+        bulk = self.record is None and self.robust is None
         if bulk and isinstance(frames, MeasurementTable):  # its runs straight from its arrays
             add_table(self, frames)
         else:
