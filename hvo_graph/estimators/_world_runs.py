@@ -1,18 +1,26 @@
-"""Offline runs of the default smoother: frames posed against the world, added in bulk.
+"""Runs of frames posed against the world: added without an update of their own.
 
-In an offline run (``FactorGraphSmoother.run(frames, online=False)``: ISAM2 without its
-window, no robust loss, no covariances) every factor goes to the back end's
-:class:`~hvo_graph.estimators.factor_store.FactorStore` as numbers, and most frames add
-the same things: the H_d pose prior against the world with the frame's own-pixel
-covariance, the motion factor from the previous frame, and initial values (the
-measured pose, the twist carried over), their H_c twist left out because two H_d poses
-against the world already span its interval. Such frames are found with array tests on
-a block of frames (:func:`_eligible`: a measurement table's arrays, or a list's records
-stacked) and each run of them is added with a few array operations: the same store,
-initial values and bookkeeping as one update per frame (tests/test_world_runs.py).
-Every other frame (the first, a keyframe pose, a twist factor to add, a tilt, numbers
-the screening does not pass, a frame out of order or of another type) goes through
-``update``, which checks it and raises exactly as always.
+Most frames of a sequence add the same things: the H_d pose prior against the world
+with the frame's own-pixel covariance, the motion factor from the previous frame, and
+initial values (the measured pose, the twist carried over), their H_c twist left out
+because two H_d poses against the world already span its interval. Such frames are
+found with array tests on a block of frames (:func:`_eligible`: a measurement table's
+arrays, or a list's records stacked) and each run of them is added at once:
+
+- offline (``FactorGraphSmoother.run(frames, online=False)``: ISAM2 without its window)
+  every factor goes to the back end's
+  :class:`~hvo_graph.estimators.factor_store.FactorStore` as numbers, and a run is added
+  with a few array operations (:func:`_apply`);
+- a back end that updates per frame (fixed-lag, online ISAM2, batch) gets one update
+  per frame of the run, with the factors and values the update would make, in its
+  order, but without its per-frame checks and records (:func:`_update_each`).
+
+Either way the store, initial values, online log and bookkeeping are those of one
+update per frame (tests/test_world_runs.py). Runs need no robust loss (its initial
+values are predictions) and no covariances (their record). Every other frame (the
+first, a keyframe pose, a twist factor to add, a tilt, numbers the screening does not
+pass, a frame out of order or of another type) goes through ``update``, which checks it
+and raises exactly as always.
 """
 
 from __future__ import annotations

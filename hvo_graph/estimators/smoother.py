@@ -240,9 +240,11 @@ class FactorGraphSmoother(Estimator):
 
     def run(self, frames: Iterable[FrameMeasurement], *, online: bool = True) -> Trajectory:
         """Fuse a whole sequence; "auto" process noise is fitted on all of it first. The
-        frames' numbers are checked a block at a time (:func:`.screen_frames`). ``online``
-        False (ISAM2, no robust loss: it needs the window's predictions): no window, the
-        final solve starts from the measurements (same optimum, a third sooner)."""
+        frames' numbers are checked a block at a time (:func:`.screen_frames`), and runs of
+        frames posed against the world skip the per-frame checks (no robust loss, no
+        covariances: :mod:`._world_runs`). ``online`` False (ISAM2, no robust loss: it needs
+        the window's predictions): no window, the final solve starts from the measurements
+        (same optimum, a third sooner)."""
         frames = frames if isinstance(frames, Sequence) else list(frames)  # a table: as is
         if not self._indices:
             self.process_noise.fit_all(frames)
