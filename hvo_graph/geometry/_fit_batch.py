@@ -18,6 +18,9 @@ frames, N points; m_ref (N, 3) is shared, m_cur (F, N, 3).
 
 from __future__ import annotations
 
+from collections.abc import Sequence
+from dataclasses import dataclass
+
 import numpy as np
 
 from hvo_graph.geometry.discrete import DEGENERACY_TOL
@@ -186,6 +189,31 @@ def _cross(a: np.ndarray, b: np.ndarray) -> np.ndarray:
     return np.stack((a1 * b2 - a2 * b1, a2 * b0 - a0 * b2, a0 * b1 - a1 * b0), axis=1)
 
 
+@dataclass(frozen=True)
+class _Entries:
+    """The linearization of F frames' N points, entry by entry, each an (F, N) array:
+    rows (J's two rows, 6 entries each), weighted (J^T Sigma^-1: 6 rows of 2), residual
+    (x, y), A (a, b, c, d: [[a, b], [c, d]]), cov (c00, c01, c11), inv (the same of
+    Sigma^-1), bad (F,)."""
+
+    rows: tuple[tuple[np.ndarray, ...], tuple[np.ndarray, ...]]
+    weighted: tuple[tuple[np.ndarray, np.ndarray], ...]
+    residual: tuple[np.ndarray, np.ndarray]
+    A: tuple[np.ndarray, ...]
+    cov: tuple[np.ndarray, np.ndarray, np.ndarray]
+    inv: tuple[np.ndarray, np.ndarray, np.ndarray]
+    bad: np.ndarray
+
+
+def _interleaved(entries: Sequence[np.ndarray], shape: tuple[int, ...]) -> np.ndarray:
+    """The (F, N) ``entries`` side by side on a last axis, reshaped to ``shape`` (stacked
+    first on a leading axis, then transposed once: faster than numpy's stack on axis -1)."""
+    stacked = np.stack(entries)
+    out = np.empty((*stacked.shape[1:], len(entries)))
+    out[...] = np.moveaxis(stacked, 0, -1)
+    return out.reshape(shape)
+
+
 class BatchTransfer:
     """:class:`~hvo_graph.geometry._fit.PlaneTransfer` of F frames against one reference.
 
@@ -211,10 +239,58 @@ class BatchTransfer:
             - np.einsum("ni,j->nij", m_ref, n) / depth[:, None, None] ** 2
         )
         self.dXstar2 = dXstar[:, :, :2]
-        #: (3, 2N): dX*/dm* (the m* x, y columns) of every point side by side.
-        self._dXstar_rows = self.dXstar2.transpose(1, 0, 2).reshape(3, 2 * len(m_ref))
+        # The linearization works on (F, N) arrays, one per entry: numpy's inner loop then
+        # runs over N points of F frames, not over a 2- or 6-long last axis. Hence X*^T
+        # (3, N), dX*/dm* as (3, 2N) (the m* x columns of every point, then the y ones) and
+        # the current points' x and y apart.
+        self._Xstar_columns = np.ascontiguousarray(self.X_star.T)
+        self._dXstar_columns = self.dXstar2.transpose(1, 2, 0).reshape(3, 2 * len(m_ref))
         self.current = m_cur[..., :2]
+        self._current_xy = np.ascontiguousarray(np.moveaxis(self.current, -1, 0))
         self.sigma = sigma
+
+    def _entries(self, R: np.ndarray, T: np.ndarray) -> _Entries:
+        """Every entry of the linearization at (R, T), each an (F, N) array."""
+        X = R @ self._Xstar_columns + T[:, :, None]  # (F, 3, N)
+        x, y, z = X[:, 0], X[:, 1], X[:, 2]
+        bad = ~(z.min(axis=1) > 0)
+        iz = 1.0 / z
+        u, v = x * iz, y * iz  # pi(X)
+        uz, vz = u * iz, v * iz
+        N = z.shape[1]
+        uv, minus_iz = u * v, -iz
+        zero = np.zeros_like(iz)
+        rows = (
+            (uv, -1.0 - u * u, v, minus_iz, zero, uz),  # J's two rows, entry by entry
+            (1.0 + v * v, -uv, -u, zero, minus_iz, vz),
+        )
+        M = R @ self._dXstar_columns  # (F, 3, 2N): R dX*/dm*, x columns then y columns
+        a = iz * M[:, 0, :N] - uz * M[:, 2, :N]  # A = [[a, b], [c, d]] per point
+        b = iz * M[:, 0, N:] - uz * M[:, 2, N:]
+        c = iz * M[:, 1, :N] - vz * M[:, 2, :N]
+        d = iz * M[:, 1, N:] - vz * M[:, 2, N:]
+        s2 = self.sigma**2
+        c00, c01, c11 = (
+            s2 * (1.0 + (a * a + b * b)),
+            s2 * (a * c + b * d),
+            s2 * (1.0 + (c * c + d * d)),
+        )
+        det = c00 * c11 - c01 * c01
+        i00, i01, i11 = c11 / det, -c01 / det, c00 / det
+        # J_i^T Sigma_i^-1 (6 x 2), entry by entry (J's zero entries left out of the sums)
+        r0 = rows[1][0]
+        weighted = (
+            (uv * i00 + r0 * i01, uv * i01 + r0 * i11),
+            (rows[0][1] * i00 - uv * i01, rows[0][1] * i01 - uv * i11),
+            (v * i00 - u * i01, v * i01 - u * i11),
+            (minus_iz * i00, minus_iz * i01),
+            (minus_iz * i01, minus_iz * i11),
+            (uz * i00 + vz * i01, uz * i01 + vz * i11),
+        )
+        residual = (self._current_xy[0] - u, self._current_xy[1] - v)
+        return _Entries(
+            rows, weighted, residual, (a, b, c, d), (c00, c01, c11), (i00, i01, i11), bad
+        )
 
     def linearize(self, R: np.ndarray, T: np.ndarray) -> tuple[tuple[np.ndarray, ...], np.ndarray]:
         """((J, JtW, residual, A, cov, inv), bad (F,)) as ``PlaneTransfer.linearize`` per
@@ -222,56 +298,41 @@ class BatchTransfer:
         non-positive depth (or NaN).
 
         J = P [X^ | -I], A = P R dX*/dm*, Sigma_i = s^2 (I + A A^T) and its inverse are
-        written out entry by entry: numpy's stacked matmul pays per 2 x 2 block, and
-        F N blocks are thousands. The same numbers to rounding."""
-        X = self.X_star @ _tr(R) + T[:, None, :]
-        x, y, z = X[..., 0], X[..., 1], X[..., 2]
-        bad = ~(z.min(axis=1) > 0)
-        iz = 1.0 / z
-        u, v = x * iz, y * iz  # pi(X)
-        uz, vz = u * iz, v * iz
-        F, N = z.shape
-        J = np.empty((F, N, 2, 6))
-        J[..., 0, 0], J[..., 0, 1], J[..., 0, 2] = u * v, -1.0 - u * u, v
-        J[..., 1, 0], J[..., 1, 1], J[..., 1, 2] = 1.0 + v * v, -u * v, -u
-        J[..., 0, 3], J[..., 0, 4], J[..., 0, 5] = -iz, 0.0, uz
-        J[..., 1, 3], J[..., 1, 4], J[..., 1, 5] = 0.0, -iz, vz
-        residual = self.current - np.stack((u, v), axis=-1)
-        M = (R @ self._dXstar_rows).reshape(F, 3, N, 2)  # R dX*/dm*, point by point
-        A = np.empty((F, N, 2, 2))
-        A[..., 0, :] = iz[..., None] * M[:, 0] - uz[..., None] * M[:, 2]
-        A[..., 1, :] = iz[..., None] * M[:, 1] - vz[..., None] * M[:, 2]
-        a, b, c, d = A[..., 0, 0], A[..., 0, 1], A[..., 1, 0], A[..., 1, 1]
-        s2 = self.sigma**2
-        c00, c01, c11 = (
-            s2 * (1.0 + (a * a + b * b)),
-            s2 * (a * c + b * d),
-            s2 * (1.0 + (c * c + d * d)),
-        )
-        cov = np.stack((c00, c01, c01, c11), axis=-1).reshape(F, N, 2, 2)
-        det = c00 * c11 - c01 * c01
-        i00, i01, i11 = c11 / det, -c01 / det, c00 / det
-        inv = np.stack((i00, i01, i01, i11), axis=-1).reshape(F, N, 2, 2)
-        JtW = np.empty((F, N, 6, 2))
-        j0, j1 = J[..., 0, :], J[..., 1, :]
-        JtW[..., 0] = j0 * i00[..., None] + j1 * i01[..., None]
-        JtW[..., 1] = j0 * i01[..., None] + j1 * i11[..., None]
-        return (J, JtW, residual, A, cov, inv), bad
+        written out entry by entry, each entry an (F, N) array (numpy's stacked matmul
+        pays per 2 x 2 block, and F N blocks are thousands), then put in place. The same
+        numbers to rounding."""
+        e = self._entries(R, T)
+        F, N = e.bad.shape[0], e.residual[0].shape[1]
+        c00, c01, c11 = e.cov
+        i00, i01, i11 = e.inv
+        return (
+            _interleaved((*e.rows[0], *e.rows[1]), (F, N, 2, 6)),
+            _interleaved([x for pair in e.weighted for x in pair], (F, N, 6, 2)),
+            _interleaved(e.residual, (F, N, 2)),
+            _interleaved(e.A, (F, N, 2, 2)),
+            _interleaved((c00, c01, c01, c11), (F, N, 2, 2)),
+            _interleaved((i00, i01, i01, i11), (F, N, 2, 2)),
+        ), e.bad
 
     def normal_equations(
         self, R: np.ndarray, T: np.ndarray, huber: float | None, w: np.ndarray
     ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """(info (F, 6, 6), grad (F, 6), bad (F,)) as ``PlaneTransfer.normal_equations`` on
-        the points of weight 1."""
-        (J, JtW, r, _, _, inv), bad = self.linearize(R, T)
+        the points of weight 1: sum_i J_i^T W_i J_i and J_i^T W_i r_i, as (F, 6, 2N) @ (F,
+        2N, 6) products over the points' x rows, then their y rows."""
+        e = self._entries(R, T)
+        r0, r1 = e.residual
         if huber is not None:
-            d = np.sqrt(_quadratic(inv, r))
+            i00, i01, i11 = e.inv
+            d = np.sqrt(i00 * r0 * r0 + 2.0 * i01 * r0 * r1 + i11 * r1 * r1)
             w = w * np.minimum(1.0, huber / np.maximum(d, 1e-12))
-        JtW = JtW * w[..., None, None]
         F, N = w.shape
-        rows = _point_columns(JtW)  # (F, 6, 2N)
-        info = rows @ J.reshape(F, 2 * N, 6)
-        return info, (rows @ r.reshape(F, 2 * N, 1))[..., 0], bad
+        JtW = np.stack([x for pair in e.weighted for x in pair], axis=1).reshape(F, 6, 2 * N)
+        JtW *= np.concatenate((w, w), axis=1)[:, None, :]
+        J = np.stack([x for pair in zip(*e.rows, strict=True) for x in pair], axis=1)
+        info = JtW @ J.reshape(F, 6, 2 * N).transpose(0, 2, 1)
+        grad = (JtW @ np.concatenate((r0, r1), axis=1)[..., None])[..., 0]
+        return info, grad, e.bad
 
     def refine(
         self, R: np.ndarray, T: np.ndarray, steps: int, huber: float | None, w: np.ndarray
