@@ -1055,8 +1055,10 @@ def reference_sections(args: argparse.Namespace) -> list[tuple[str, str]]:
                 "smoother runs no online window: its final solve starts from the measurements "
                 "(`FactorGraphSmoother.run(frames, online=False)`, the same optimum), and its "
                 "frames posed against the world go to the factor store in runs read from the "
-                "measurement table's arrays; the per-update rows above time it with the "
-                "window, one update per frame, as a streaming user runs it.",
+                "measurement table's arrays; the fixed-lag smoother still updates once "
+                "per frame, but such frames skip the per-frame checks (their numbers are "
+                "screened a block at a time). The per-update rows above time both "
+                "with every frame through `update`, as a streaming user runs them.",
                 refs.cli_section(runs),
             ]
         )
