@@ -11,10 +11,13 @@ run is just a longer duration) this script
    paper's Kalman filter, the factor-graph smoother (default: ISAM2 over a
    window, then the batch solve), with the fixed-lag smoother (1 s window) and
    with batch Levenberg-Marquardt. Each runs ``run(frames)`` as the command
-   line does; every ``update`` call is timed, and the rest of ``run``
-   (process-noise fit, final ``trajectory()``: the batch solves happen there).
-   The Kalman filter's ``run`` filters in a loop of its own, without ``update``:
-   it is run on consecutive blocks of 100 frames, each frame timed as its share;
+   line does, on consecutive blocks of 100 frames (each run continues where the
+   last stopped), each frame timed as its share of its block: the Kalman filter
+   filters in a loop of its own, and the smoothers add runs of frames posed
+   against the world without an ``update`` each. The rest of ``run``
+   (process-noise fit on the whole sequence, final ``trajectory()``: the batch
+   solves happen there) is timed apart; the tight smoother's ``update`` calls
+   are timed one by one;
 3. runs every configuration (component x length) once, in a fresh subprocess
    that reports both its timing and its peak memory (the front end's
    subprocess passes its measurements on through a file; ``--no-memory``: all
@@ -45,11 +48,11 @@ run is just a longer duration) this script
    files, and ``hvo-graph estimate --images`` end to end
    (experiments/benchmark_images.py).
 
-Columns: overall frames per second = frames / (all updates + ``trajectory()``);
-the CPU time of the run (``time.process_time``, steadier than wall time when
-other processes share the machine); the mean wall time per frame of the first
-and of the last 100 updates and their ratio (how the cost per frame grows with
-the length of the sequence), and the cost curve: the mean time per update in
+Columns: overall frames per second = frames / (all frames + fit +
+``trajectory()``); the CPU time of the run (``time.process_time``, steadier than
+wall time when other processes share the machine); the mean wall time per frame of
+the first and of the last 100 frames and their ratio (how the cost per frame grows
+with the length of the sequence), and the cost curve: the mean time per frame in
 each tenth of the longest run. Batch LM is skipped above ``--batch-max-frames``
 (default 10,000: its solve re-linearizes the whole graph on every iteration;
 the output says so). Wall-clock timings depend on the machine and its load: the
@@ -98,6 +101,7 @@ import numpy as np
 
 from hvo_graph.errors import InputError
 from hvo_graph.estimators.base import Estimator
+from hvo_graph.estimators.noise_estimation import ProcessNoiseSchedule
 from hvo_graph.frontend import FrontEndConfig, MeasurementFrontEnd
 from hvo_graph.pipeline import make_estimator
 from hvo_graph.report.tables import markdown_table, write_text_atomic
@@ -197,7 +201,8 @@ class Timing:
         component: key of :data:`COMPONENTS`.
         frames: sequence length.
         per_frame: (frames,) seconds of each ``update`` call (front end: its share of
-            its block's ``process_all``).
+            its block's ``process_all``; :data:`BLOCK_RUN_COMPONENTS`: of its block's
+            ``run``).
         finish: seconds of the final ``trajectory()`` call (0 for the front end).
         cpu: CPU seconds of the process over the whole run (``time.process_time``; all
             threads), less sensitive than wall time to other load on the machine.
@@ -317,21 +322,31 @@ def run_estimator(name: str, frames: Sequence[FrameMeasurement]) -> Timing:
     return Timing(name, len(frames), per_frame, finish, cpu=cpu, cpu_per_frame=np.array(cpu_times))
 
 
-#: Estimators whose offline ``run`` filters without calling ``update`` (the Kalman filter:
-#: its own loop over the whole sequence); timed block by block instead.
-BLOCK_RUN_COMPONENTS = ("kalman",)
+#: Estimators whose ``run`` does not call ``update`` for every frame (the Kalman filter: its
+#: own loop over the whole sequence; the factor-graph smoothers: runs of frames posed
+#: against the world, estimators/_world_runs.py); timed block by block instead.
+BLOCK_RUN_COMPONENTS = ("kalman", "isam2", "isam2-cov", "fixed-lag", "batch")
 
 
 def _run_in_blocks(name: str, estimator: Estimator, frames: Sequence[FrameMeasurement]) -> Timing:
     """Time ``run`` on consecutive blocks of ``FRONTEND_BLOCK`` frames (each run continues
     where the last stopped: the same estimates as one run), every frame its share of its
-    block; the final ``trajectory()`` once at the end (the blocks' own are skipped)."""
+    block; the final ``trajectory()`` once at the end (the blocks' own are skipped). A
+    smoother's process-noise fit reads the whole sequence first, as its ``run`` does (the
+    blocks' runs do not fit again), and counts with the final ``trajectory()``."""
     clock, cpu_clock = time.perf_counter, time.process_time
     n = len(frames)
     times, cpu_times = np.empty(n), np.empty(n)
     trajectory = estimator.trajectory
     estimator.trajectory = lambda: None  # type: ignore[method-assign,assignment,return-value]
     cpu = cpu_clock()
+    fit = 0.0
+    schedule = getattr(estimator, "process_noise", None)
+    if isinstance(schedule, ProcessNoiseSchedule):  # a smoother's (the filter's is an array)
+        start = clock()
+        schedule.fit_all(frames)
+        fit = clock() - start
+        schedule.fit_all = lambda frames: None
     for i in range(0, n, FRONTEND_BLOCK):
         block = frames[i : i + FRONTEND_BLOCK]
         start, cpu_start = clock(), cpu_clock()
@@ -341,7 +356,7 @@ def _run_in_blocks(name: str, estimator: Estimator, frames: Sequence[FrameMeasur
     estimator.trajectory = trajectory  # type: ignore[method-assign]
     start = clock()
     trajectory()
-    finish = clock() - start
+    finish = clock() - start + fit
     cpu = cpu_clock() - cpu
     return Timing(name, n, times, finish, cpu=cpu, cpu_per_frame=cpu_times)
 
@@ -797,22 +812,25 @@ def performance_markdown(
         "sequences are longer durations). The front end runs once per length; its measurements "
         "are fed to every estimator, one after the other.",
         "",
-        "Every estimator runs as the command line runs it, `run(frames)`.",
+        "Every estimator runs as the command line runs it, `run(frames)`, on consecutive "
+        "blocks of 100 frames (each run goes on where the last stopped: the same estimates "
+        "as one run), each frame timed as its share of its block; the tight smoother's "
+        "`update` calls one by one.",
         "",
-        f"- **frames/s**: frames / the whole `run` (every `update` call, the final "
+        f"- **frames/s**: frames / the whole `run` (every frame, the final "
         "`trajectory()`, and the smoothers' process-noise fit before the first frame), wall time; "
         "**CPU**: CPU seconds of the whole run (`time.process_time`, all threads; steadier "
         "than wall time when other processes load the machine); "
         f"**first / last {WINDOW}**: mean wall time of the first and the last {WINDOW} "
-        "`update` calls (front end: the mean of its blocks of 100 frames), and their ratio "
+        "frames, and their ratio "
         "(1 = constant cost per frame); "
         f"**last/first {WINDOW}, CPU**: the same ratio in CPU time per call.",
-        "- **fit + trajectory()**: the time `run` spends outside `update`: the smoothers' "
+        "- **fit + trajectory()**: the time `run` spends outside its frames: the smoothers' "
         "maximum-likelihood fit of the process noise on the whole sequence, and the final call "
         "that returns the smoothed trajectory. The batch solver, the default smoother and "
         "the tight graph solve the whole graph there (batch: one Levenberg-Marquardt solve "
         "from the raw measurements; the default smoother and tight: in chunks from their "
-        "window's estimates, below); their `update` calls only add factors (and, for the "
+        "window's estimates, below); their frames only add factors (and, for the "
         "default smoother and tight, update the window).",
     ]
     if memory:
@@ -839,8 +857,8 @@ def performance_markdown(
             "",
             "## Cost per frame along the sequence",
             "",
-            f"Mean CPU time per `update` [ms] (`time.process_time` around each call: other "
-            "processes on the machine change the wall time of a call, not its CPU time) in "
+            f"Mean CPU time per frame [ms] (`time.process_time` around each block or call: "
+            "other processes on the machine change the wall time of a call, not its CPU time) in "
             f"each of {CURVE_PARTS} equal parts of the longest run of every estimator (the final "
             "`trajectory()` not included; it is in the table above). A flat row is a cost per "
             "frame that does not grow with the length of the sequence.",
