@@ -190,10 +190,8 @@ class FixedLagBackend(IncrementalBackend):
         # Stamps are multiples of the block and the lag is MARGINALIZATION_BLOCKS blocks:
         # half a block more keeps GTSAM's test "stamp < latest - lag" away from ties.
         self.smoother_lag = lag * (1.0 + 0.5 / MARGINALIZATION_BLOCKS)
-        # Wildfire threshold 0: every estimate read back-substitutes the whole window, so the
-        # estimates of the frames about to leave it are exact (ISAM2's default 0.001 leaves
-        # them stale far from the root), read per key instead of a full copy per block (a
-        # tenth of the run), and the online poses are relative to the anchor's exact estimate.
+        # Wildfire threshold 0: an estimate read back-substitutes the whole window, so frames
+        # leaving it are read exactly per key (0.001 left them stale far from the root).
         params.setOptimizationParams(gtsam.ISAM2GaussNewtonParams(0.0))
         self.smoother = gtsam.IncrementalFixedLagSmoother(self.smoother_lag, params)
         #: (index, stamp) of the frames still in the window, oldest first.
