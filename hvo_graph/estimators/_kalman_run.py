@@ -38,6 +38,11 @@ from hvo_graph.estimators.kalman_model import (
 )
 from hvo_graph.types import FrameMeasurement
 
+try:  # numpy's LAPACK solve itself: np.linalg.solve wraps it in checks that cost as much
+    from numpy.linalg._umath_linalg import solve as _solve
+except ImportError:  # pragma: no cover - a numpy without it: the public function
+    _solve = np.linalg.solve
+
 if TYPE_CHECKING:
     from hvo_graph.estimators.kalman import KalmanBaseline
 
@@ -128,7 +133,7 @@ def _loop(
             y = Z[k] - x
             _wrap_angles(y)  # the angle rows of y: y[3:6], as in x
             S = P + R_full
-            K = np.linalg.solve(S, P).T
+            K = _solve(S, P).T  # S = P + R, R > 0: never singular
             x = x + dot(K, y)
             _wrap_angles(x)
             I_KH = _I12 - K
