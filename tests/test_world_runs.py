@@ -60,6 +60,23 @@ def equal(a: dict, b: dict) -> None:
             ), name
 
 
+def assert_same_run(runs: tuple, each: tuple, frames, *, expect_runs: str) -> None:
+    """Runs (smoother, trajectory, frames added in runs) against one update per frame:
+    the frames added in runs (``expect_runs``: "none", "some" or "all but the first"),
+    the same state and trajectory to the last bit."""
+    added, none = runs[2], each[2]
+    assert none == 0
+    if expect_runs == "none":
+        assert added == 0
+    elif expect_runs == "some":
+        assert 0 < added < len(frames) - 1
+    else:
+        assert added == len(frames) - 1
+    equal(state(runs[0]), state(each[0]))
+    for field in ("t", "rotations", "positions", "twists"):
+        assert np.array_equal(getattr(runs[1], field), getattr(each[1], field))
+
+
 def offline(frames, monkeypatch, bulk: bool, **options):
     """(smoother, trajectory, frames added in bulk) of run(frames, online=False); not
     ``bulk``: one update per frame."""
@@ -123,21 +140,14 @@ def test_runs_in_bulk_leave_what_updates_leave(container, data, options, noisy_r
     # block (its open records, not yet stored as arrays, through their records).
     frames = noisy_run[1] if data == "paper" else family_frames(data, 1)
     frames = as_container(frames, container)
-    bulk, bulk_trajectory, added = offline(frames, monkeypatch, True, **options)
-    each, each_trajectory, none = offline(frames, monkeypatch, False, **options)
-    assert none == 0
+    bulk = offline(frames, monkeypatch, True, **options)
+    each = offline(frames, monkeypatch, False, **options)
     # Every frame posed against the world after the first goes in bulk (dropped frames
     # included), unless it has a twist that becomes a factor ("all"); the traverse's
     # keyframe poses go one by one.
-    if options.get("velocity_factors") == "all":
-        assert added == 0
-    elif data == "traverse":
-        assert 0 < added < len(frames) - 1
-    else:
-        assert added == len(frames) - 1
-    equal(state(bulk), state(each))
-    for field in ("t", "rotations", "positions", "twists"):
-        assert np.array_equal(getattr(bulk_trajectory, field), getattr(each_trajectory, field))
+    expect = "some" if data == "traverse" else "all but the first"
+    expect = "none" if options.get("velocity_factors") == "all" else expect
+    assert_same_run(bulk, each, frames, expect_runs=expect)
 
 
 @pytest.mark.parametrize("field", ["t", "index"])
@@ -229,13 +239,7 @@ def test_windowed_runs_update_each_frame_as_its_own_update_does(
     frames = noisy_run[1] if data == "paper" else family_frames(data, 1)
     frames = as_container(frames, container)
     options = {"solver": solver, **options}
-    runs, runs_trajectory, added = windowed_run(frames, monkeypatch, True, online, **options)
-    each, each_trajectory, none = windowed_run(frames, monkeypatch, False, online, **options)
-    assert none == 0
-    if data == "traverse":
-        assert 0 < added < len(frames) - 1
-    else:
-        assert added == len(frames) - 1
-    equal(state(runs), state(each))
-    for field in ("t", "rotations", "positions", "twists"):
-        assert np.array_equal(getattr(runs_trajectory, field), getattr(each_trajectory, field))
+    runs = windowed_run(frames, monkeypatch, True, online, **options)
+    each = windowed_run(frames, monkeypatch, False, online, **options)
+    expect = "some" if data == "traverse" else "all but the first"
+    assert_same_run(runs, each, frames, expect_runs=expect)
