@@ -243,3 +243,33 @@ def test_windowed_runs_update_each_frame_as_its_own_update_does(
     each = windowed_run(frames, monkeypatch, False, online, **options)
     expect = "some" if data == "traverse" else "all but the first"
     assert_same_run(runs, each, frames, expect_runs=expect)
+
+
+@pytest.mark.parametrize("solver", ["fixed-lag", "batch"])
+def test_a_failing_update_inside_a_run_leaves_what_the_updates_leave(solver, noisy_run):
+    # Should GTSAM raise on frame 50 (inside a run), the frames before it are estimated
+    # and logged, frame 50 is in the bookkeeping but not the log: as with one update each.
+    frames = list(noisy_run[1][:80])
+
+    def failing(smoother: FactorGraphSmoother) -> FactorGraphSmoother:
+        add = smoother.backend.add
+
+        def add_until_50(graph, values, index, stamp_time):
+            if index == 50:
+                raise RuntimeError("indeterminant system")
+            return add(graph, values, index, stamp_time)
+
+        smoother.backend.add = add_until_50
+        return smoother
+
+    left = []
+    for runs in (True, False):
+        smoother = failing(FactorGraphSmoother(solver=solver, acceleration_sigma=(0.05, 0.05)))
+        with pytest.MonkeyPatch.context() as patch:
+            if not runs:
+                patch.setattr(_world_runs, "_applies", lambda smoother: False)
+            with pytest.raises(RuntimeError, match=r"^indeterminant system$"):
+                smoother.run(frames)
+        assert len(smoother._online) == 50 and smoother._indices[-1] == 50
+        left.append(state(smoother))
+    equal(*left)

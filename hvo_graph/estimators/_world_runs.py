@@ -56,15 +56,15 @@ _ZERO66 = np.zeros((6, 6))  # shared by the frames' reference covariances (never
 class WorldRun:
     """Consecutive frames, each posed against the world, to add at once: indices (n,),
     times (n,) s, measured rotations (n, 3, 3) R_wc and positions (n, 3) p_wc, each pose
-    factor's screened covariance (n, 6, 6), and how many of them had an H_c twist that
-    their poses span (left out)."""
+    factor's screened covariance (n, 6, 6), and which had an H_c twist that their poses
+    span (left out) (n,)."""
 
     indices: np.ndarray
     times: np.ndarray
     rotations: np.ndarray
     positions: np.ndarray
     covariances: np.ndarray
-    twists_skipped: int
+    twists_skipped: np.ndarray
 
 
 def add_table(smoother: FactorGraphSmoother, table: MeasurementTable) -> None:
@@ -119,7 +119,7 @@ def _add_rows(
                 rows["rotation"][i:j],
                 rows["position"][i:j],
                 factor[i:j],
-                int(rows["moving"][i:j].sum()),
+                rows["moving"][i:j],
             )
             i += _apply(s, run)
             continue
@@ -200,7 +200,7 @@ def _apply(s: FactorGraphSmoother, run: WorldRun) -> int:
     s._times.extend(run.times.tolist())
     s._reference_cov.extend([_ZERO66 if s.shared_reference_noise else s._reference_cov[-1]] * n)
     s._last_reference, s._pose = 0, values.atPose3(X(last))
-    s.velocity_factor_counts["skipped"] += run.twists_skipped
+    s.velocity_factor_counts["skipped"] += int(run.twists_skipped.sum())
     # The updates' log: each pose relative to X(k0)'s value, which is the identity here.
     twists = np.tile(s._twist, (n, 1))
     s._online.extend(run.indices, run.times, run.rotations, run.positions, twists, None)
@@ -210,39 +210,49 @@ def _apply(s: FactorGraphSmoother, run: WorldRun) -> int:
 def _update_each(s: FactorGraphSmoother, run: WorldRun) -> int:
     """A back end that updates per frame (a window: fixed-lag, online ISAM2; batch): each
     frame's motion factor, pose prior and initial values as its update makes them, in the
-    same order, without the update's checks (the screening passed) and records."""
+    same order, without the update's checks (the screening passed) and records. Should a
+    GTSAM update raise, the smoother is left as that frame's ``update`` would leave it."""
     n, split, store = len(run.times), s.shared_reference_noise, s.backend.store
     rotations, positions, twists = np.empty((n, 3, 3)), np.empty((n, 3)), np.empty((n, 6))
     first, t0, model, sigma = s._indices[0], s._times[0], s.motion_model, s.acceleration_sigma
     frames = zip(
         run.indices.tolist(), run.times.tolist(), run.rotations, run.positions, strict=True
     )
-    for i, (k, t, R, p) in enumerate(frames):
-        dt = t - s._times[-1]
-        graph = gtsam.NonlinearFactorGraph()
-        store.add_frame(k)
-        for factor in s._motion(model, s._indices[-1], k, dt, sigma):
-            graph.add(factor)
-        store.add_motion(dt, sigma, model)
-        s._indices.append(k)
-        s._times.append(t)
-        measured = gtsam.Pose3(gtsam.Rot3(R), p)
-        graph.add(gtsam.PriorFactorPose3(X(k), measured, s._pose_noise(run.covariances[i])))
-        store.add_pose_prior(measured, run.covariances[i])
-        values = gtsam.Values()
-        values.insert(X(k), measured)
-        values.insert(V(k), s._twist)
-        if model == "wnj":
-            values.insert(A(k), _ZERO6)
-        s._pose, twist, _ = s.backend.add(graph, values, k, t - t0)
-        s._twist = twists[i] = twist
-        relative = s._relative(s._pose, s.backend.current_pose(first))
-        rotations[i] = relative.rotation().matrix()
-        positions[i] = relative.translation()
-    s._reference_cov.extend([_ZERO66 if split else s._reference_cov[-1]] * n)
-    s._last_reference, s._world_posed = 0, True
-    s.velocity_factor_counts["skipped"] += run.twists_skipped
-    s._online.extend(run.indices, run.times, rotations, positions, twists, None)
+    started = done = 0  # frames in the bookkeeping; frames whose update returned
+    try:
+        for i, (k, t, R, p) in enumerate(frames):
+            dt = t - s._times[-1]
+            graph = gtsam.NonlinearFactorGraph()
+            store.add_frame(k)
+            for factor in s._motion(model, s._indices[-1], k, dt, sigma):
+                graph.add(factor)
+            store.add_motion(dt, sigma, model)
+            s._indices.append(k)
+            s._times.append(t)
+            started = i + 1
+            measured = gtsam.Pose3(gtsam.Rot3(R), p)
+            graph.add(gtsam.PriorFactorPose3(X(k), measured, s._pose_noise(run.covariances[i])))
+            store.add_pose_prior(measured, run.covariances[i])
+            values = gtsam.Values()
+            values.insert(X(k), measured)
+            values.insert(V(k), s._twist)
+            if model == "wnj":
+                values.insert(A(k), _ZERO6)
+            s._pose, twist, _ = s.backend.add(graph, values, k, t - t0)
+            s._twist = twists[i] = twist
+            relative = s._relative(s._pose, s.backend.current_pose(first))
+            rotations[i] = relative.rotation().matrix()
+            positions[i] = relative.translation()
+            done = i + 1
+    finally:  # what each update sets before its GTSAM update, then its log entry
+        s._reference_cov.extend([_ZERO66 if split else s._reference_cov[-1]] * started)
+        if started:
+            s._last_reference, s._world_posed = 0, True
+        s.velocity_factor_counts["skipped"] += int(run.twists_skipped[:started].sum())
+        rows = slice(0, done)
+        s._online.extend(
+            run.indices[rows], run.times[rows], rotations[rows], positions[rows], twists[rows], None
+        )
     return n
 
 
