@@ -235,8 +235,7 @@ class BatchTransfer:
         # the current points' x and y apart.
         self._Xstar_columns = np.ascontiguousarray(self.X_star.T)
         self._dXstar_columns = self.dXstar2.transpose(1, 2, 0).reshape(3, 2 * len(m_ref))
-        self.current = m_cur[..., :2]
-        self._current_xy = np.ascontiguousarray(np.moveaxis(self.current, -1, 0))
+        self._current_xy = np.ascontiguousarray(np.moveaxis(m_cur[..., :2], -1, 0))
         self.sigma = sigma
 
     def _entries(self, R: np.ndarray, T: np.ndarray) -> _Entries:
@@ -268,9 +267,9 @@ class BatchTransfer:
         det = c00 * c11 - c01 * c01
         i00, i01, i11 = c11 / det, -c01 / det, c00 / det
         # J_i^T Sigma_i^-1 (6 x 2), entry by entry (J's zero entries left out of the sums)
-        r0 = rows[1][0]
+        one_vv = rows[1][0]
         weighted = (
-            (uv * i00 + r0 * i01, uv * i01 + r0 * i11),
+            (uv * i00 + one_vv * i01, uv * i01 + one_vv * i11),
             (rows[0][1] * i00 - uv * i01, rows[0][1] * i01 - uv * i11),
             (v * i00 - u * i01, v * i01 - u * i11),
             (minus_iz * i00, minus_iz * i01),
@@ -380,9 +379,3 @@ def _point_columns(M: np.ndarray) -> np.ndarray:
     """(F, 6, 2N): the (F, N, 6, 2) blocks side by side (columns 2i, 2i+1: point i)."""
     F, N = M.shape[:2]
     return M.transpose(0, 2, 1, 3).reshape(F, 6, 2 * N)
-
-
-def _quadratic(inv: np.ndarray, r: np.ndarray) -> np.ndarray:
-    """(F, N) r_i^T inv_i r_i of (F, N, 2, 2) symmetric inv and (F, N, 2) r."""
-    r0, r1 = r[..., 0], r[..., 1]
-    return inv[..., 0, 0] * r0 * r0 + 2.0 * inv[..., 0, 1] * r0 * r1 + inv[..., 1, 1] * r1 * r1
